@@ -1,0 +1,10 @@
+"""The ``ros2-mos`` command line: one typer app, each subcommand a thin call into the library.
+
+Each module below registers its subcommands on :data:`app`; heavy imports (torch,
+onnxruntime, rclpy) happen inside the commands so that ``--help`` stays instant.
+"""
+
+from ros2_mos.cli.app import app, main
+# command modules are imported below as they are added
+
+__all__ = ["app", "main"]

@@ -1,0 +1,36 @@
+"""The typer application every command module registers on, and the error boundary."""
+
+from __future__ import annotations
+
+import sys
+from typing import NoReturn
+
+import typer
+
+from ros2_mos.errors import MosError
+
+app = typer.Typer(
+    name="ros2-mos",
+    help="Online moving object segmentation for rotating 3D LiDAR (Chen et al., RA-L 2021).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def fail(message: str, code: int = 1) -> NoReturn:
+    """Print a one-line error to stderr and exit: the only place the CLI chooses exit codes."""
+    typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
+    raise typer.Exit(code)
+
+
+def main() -> None:
+    """Console-script entry: typed library errors become one-line messages and exit code 1."""
+    # Imported here so that `ros2_mos.cli.app` alone does not pull every command module.
+    import ros2_mos.cli  # noqa: F401
+
+    try:
+        app()
+    except MosError as exc:
+        typer.secho(f"error: {exc}", err=True, fg=typer.colors.RED)
+        sys.exit(1)

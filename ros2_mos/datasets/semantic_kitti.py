@@ -1,0 +1,210 @@
+"""SemanticKITTI sequence folders: the format real MOS users have, read and written.
+
+Layout of one sequence::
+
+    XX/velodyne/NNNNNN.bin   float32 x, y, z, remission
+    XX/labels/NNNNNN.label   uint32, semantic id in the low 16 bits, instance in the high 16
+    XX/poses.txt             3x4 camera poses per line (row-major)
+    XX/calib.txt             'Tr:' the 3x4 LiDAR -> camera transform (among others)
+    XX/times.txt             one timestamp in seconds per scan
+
+Poses in ``poses.txt`` are in the camera frame; :func:`read_poses` returns LiDAR
+poses ``inv(Tr) @ P @ Tr`` as LiDAR-MOS does, and :func:`write_poses` inverts that.
+A bare folder of ``velodyne/*.bin`` (a user's own recording) is a valid sequence too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ros2_mos.errors import DatasetError
+
+KITTI_TR = np.array(
+    [
+        [4.276802385584e-04, -9.999672484946e-01, -8.084491683471e-03, -1.198459927713e-02],
+        [-7.210626507497e-03, 8.081198471645e-03, -9.999413164504e-01, -5.403984729748e-02],
+        [9.999738645903e-01, 4.859485810390e-04, -7.206933692422e-03, -2.921968648686e-01],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
+
+
+def read_scan(path: str | Path) -> np.ndarray:
+    """Read a ``.bin`` scan as an (N, 4) float32 array: x, y, z, remission."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"scan file not found: {path}")
+    data = np.fromfile(path, dtype=np.float32)
+    if data.size % 4:
+        raise DatasetError(f"{path}: size {data.size * 4} bytes is not a multiple of 16 (x, y, z, remission float32)")
+    return data.reshape(-1, 4)
+
+
+def write_scan(path: str | Path, points: np.ndarray, remission: np.ndarray | None = None) -> None:
+    """Write x, y, z (+ remission, zeros if None) as a KITTI ``.bin``."""
+    pts = np.asarray(points, dtype=np.float32)
+    if pts.ndim != 2 or pts.shape[1] not in (3, 4):
+        raise DatasetError(f"write_scan: expected (N, 3) or (N, 4) points, got {pts.shape}")
+    if pts.shape[1] == 3:
+        rem = np.zeros(len(pts), np.float32) if remission is None else np.asarray(remission, np.float32)
+        pts = np.column_stack([pts, rem])
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    np.ascontiguousarray(pts, dtype=np.float32).tofile(path)
+
+
+def read_label(path: str | Path, expected_points: int | None = None) -> np.ndarray:
+    """Read a ``.label`` file as uint32; check it has one label per point when told how many."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"label file not found: {path}")
+    labels = np.fromfile(path, dtype=np.uint32)
+    if expected_points is not None and len(labels) != expected_points:
+        raise DatasetError(f"{path}: {len(labels)} labels for {expected_points} points")
+    return labels
+
+
+def write_label(path: str | Path, labels: np.ndarray) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    np.ascontiguousarray(labels, dtype=np.uint32).tofile(path)
+
+
+def read_calib(path: str | Path) -> np.ndarray:
+    """The 4x4 LiDAR -> camera transform ``Tr`` of a ``calib.txt``."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"calib file not found: {path}")
+    for line in path.read_text().splitlines():
+        key, _, values = line.partition(":")
+        if key.strip() == "Tr":
+            numbers = [float(v) for v in values.split()]
+            if len(numbers) != 12:
+                raise DatasetError(f"{path}: 'Tr' needs 12 numbers, got {len(numbers)}")
+            tr = np.eye(4)
+            tr[:3, :4] = np.reshape(numbers, (3, 4))
+            return tr
+    raise DatasetError(f"{path}: no 'Tr:' line")
+
+
+def write_calib(path: str | Path, tr: np.ndarray = KITTI_TR) -> None:
+    """Write a calib.txt with identity projections P0..P3 and the given ``Tr``."""
+    p = " ".join(f"{v:.12e}" for v in np.eye(4)[:3, :4].ravel())
+    t = " ".join(f"{v:.12e}" for v in np.asarray(tr)[:3, :4].ravel())
+    Path(path).write_text("".join(f"P{i}: {p}\n" for i in range(4)) + f"Tr: {t}\n")
+
+
+def read_poses(path: str | Path, tr: np.ndarray | None = None) -> np.ndarray:
+    """Read ``poses.txt`` as (M, 4, 4) LiDAR poses (camera poses if ``tr`` is None)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"poses file not found: {path}")
+    rows = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    if rows.shape[1] != 12:
+        raise DatasetError(f"{path}: each pose line needs 12 numbers, got {rows.shape[1]}")
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    poses[:, :3, :4] = rows.reshape(-1, 3, 4)
+    if tr is not None:
+        poses = np.linalg.inv(tr) @ poses @ tr
+    return poses
+
+
+def write_poses(path: str | Path, lidar_poses: np.ndarray, tr: np.ndarray | None = KITTI_TR) -> None:
+    """Write LiDAR poses as KITTI camera poses ``Tr @ P @ inv(Tr)``."""
+    poses = np.asarray(lidar_poses, dtype=np.float64)
+    if tr is not None:
+        poses = tr @ poses @ np.linalg.inv(tr)
+    np.savetxt(path, poses[:, :3, :4].reshape(-1, 12), fmt="%.12e")
+
+
+def read_times(path: str | Path) -> np.ndarray:
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"times file not found: {path}")
+    return np.loadtxt(path, dtype=np.float64, ndmin=1)
+
+
+def write_times(path: str | Path, times: np.ndarray) -> None:
+    np.savetxt(path, np.asarray(times, dtype=np.float64), fmt="%.6e")
+
+
+@dataclass
+class Frame:
+    """One scan of a sequence with what the folder has for it (labels/pose may be None)."""
+
+    index: int
+    points: np.ndarray  # (N, 3) float32
+    remission: np.ndarray  # (N,) float32
+    labels: np.ndarray | None  # (N,) uint32 raw SemanticKITTI labels
+    pose: np.ndarray | None  # (4, 4) LiDAR pose in the sequence's world frame
+    timestamp: float
+
+
+class SemanticKittiSequence:
+    """One sequence folder; needs only ``velodyne/*.bin``, uses labels/poses/times when present."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        velodyne = self.root / "velodyne"
+        if not velodyne.is_dir():
+            raise DatasetError(f"{self.root}: no velodyne/ folder (expected a SemanticKITTI sequence folder)")
+        self.scan_files = sorted(velodyne.glob("*.bin"))
+        if not self.scan_files:
+            raise DatasetError(f"{velodyne}: no .bin scans")
+        self.name = self.root.name
+        label_dir = self.root / "labels"
+        self.has_labels = label_dir.is_dir() and any(label_dir.glob("*.label"))
+        self.poses = self._load_poses()
+        times_file = self.root / "times.txt"
+        self.times = read_times(times_file) if times_file.is_file() else np.arange(len(self.scan_files)) * 0.1
+        if len(self.times) < len(self.scan_files):
+            raise DatasetError(f"{times_file}: {len(self.times)} times for {len(self.scan_files)} scans")
+
+    def _load_poses(self) -> np.ndarray | None:
+        poses_file = self.root / "poses.txt"
+        if not poses_file.is_file():
+            return None
+        calib_file = self.root / "calib.txt"
+        tr = read_calib(calib_file) if calib_file.is_file() else None
+        poses = read_poses(poses_file, tr)
+        if len(poses) < len(self.scan_files):
+            raise DatasetError(f"{poses_file}: {len(poses)} poses for {len(self.scan_files)} scans")
+        return poses
+
+    def __len__(self) -> int:
+        return len(self.scan_files)
+
+    def label_path(self, index: int) -> Path:
+        return self.root / "labels" / (self.scan_files[index].stem + ".label")
+
+    def __getitem__(self, index: int) -> Frame:
+        if not 0 <= index < len(self):
+            raise IndexError(f"scan {index} out of range 0..{len(self) - 1}")
+        scan = read_scan(self.scan_files[index])
+        labels = read_label(self.label_path(index), len(scan)) if self.has_labels else None
+        pose = None if self.poses is None else self.poses[index]
+        return Frame(index, scan[:, :3], scan[:, 3], labels, pose, float(self.times[index]))
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self[i]
+
+
+def sequence_dirs(root: str | Path, names: list[str] | None = None) -> list[Path]:
+    """Sequence folders under ``root`` (``root/sequences/XX`` or ``root/XX``), optionally only ``names``."""
+    root = Path(root)
+    base = root / "sequences" if (root / "sequences").is_dir() else root
+    if (base / "velodyne").is_dir():
+        return [base]
+    if names is None:
+        found = sorted(p for p in base.iterdir() if (p / "velodyne").is_dir()) if base.is_dir() else []
+    else:
+        found = [base / n for n in names]
+        missing = [str(p) for p in found if not (p / "velodyne").is_dir()]
+        if missing:
+            raise DatasetError(f"sequence folders not found: {', '.join(missing)}")
+    if not found:
+        raise DatasetError(f"{root}: no sequence folders with velodyne/ found")
+    return found

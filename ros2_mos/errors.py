@@ -1,0 +1,25 @@
+"""Typed errors of the core.
+
+Library code raises these; only the CLI and the node's ``main()`` turn them into
+messages and exit codes, so every caller can tell bad input from a bug.
+"""
+
+
+class MosError(Exception):
+    """Base class of every error the ros2_mos core raises on purpose."""
+
+
+class ScanError(MosError, ValueError):
+    """A scan is malformed: wrong shape, empty, or without any finite point."""
+
+
+class ConfigError(MosError, ValueError):
+    """A configuration value is invalid (unknown preset, negative range, N < 0, ...)."""
+
+
+class ModelError(MosError):
+    """A model file is missing, unreadable, or does not fit the configured setup."""
+
+
+class DatasetError(MosError):
+    """A dataset folder or file is missing or does not follow the expected format."""

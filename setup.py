@@ -1,0 +1,34 @@
+"""ament_python package setup: the same file serves colcon on a ROS 2 install and pip off it."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "ros2_mos"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    # The shipped model and default config travel inside the package too, so that
+    # `pip install .` and `pip install -e .` find them through importlib.resources.
+    package_data={PACKAGE: ["models/*.onnx", "models/*.json", "data/*.yaml"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/models", glob(f"{PACKAGE}/models/*.onnx")),
+    ],
+    install_requires=["setuptools", "numpy", "pyyaml", "typer", "tqdm"],
+    zip_safe=True,
+    maintainer="ros2_mos developers",
+    maintainer_email="dev@ros2-mos.invalid",
+    description="Online moving object segmentation for rotating 3D LiDAR (ROS 2 Jazzy).",
+    license="MIT",
+    entry_points={
+        "console_scripts": [
+            "ros2-mos = ros2_mos.cli.app:main",
+        ],
+    },
+)
