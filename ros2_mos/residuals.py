@@ -1,0 +1,67 @@
+"""Residual images (paper Sec. III-B): how much a past scan disagrees with the current one.
+
+A past scan j is moved into the current frame with the relative pose
+``inv(T_0) @ T_j``, re-projected, and compared pixel by pixel::
+
+    d_j = |r_0 − r_j→0| / r_0      where both ranges lie in (min_range, max_range), else 0
+
+The (2, 50) m window and the normalisation by the current range are those of the
+LiDAR-MOS reference code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ros2_mos.config import ResidualConfig, SensorConfig
+from ros2_mos.projection import check_points, project_range
+
+
+def transform_points(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 rigid transform to (N, 3) points (float32 out, computed in float64)."""
+    pts = check_points(points)
+    t = np.asarray(transform, dtype=np.float64)
+    return (pts @ t[:3, :3].T.astype(pts.dtype) + t[:3, 3].astype(pts.dtype)).astype(np.float32, copy=False)
+
+
+def relative_pose(current_pose: np.ndarray, past_pose: np.ndarray) -> np.ndarray:
+    """The transform taking points of the past scan's frame into the current scan's frame."""
+    return np.linalg.inv(current_pose) @ past_pose
+
+
+def residual_image(current_range: np.ndarray, past_range: np.ndarray, config: ResidualConfig) -> np.ndarray:
+    """|r_0 − r_j| / r_0 on pixels where both ranges lie inside the window, 0 elsewhere."""
+    lo, hi = config.min_range, config.max_range
+    valid = (current_range > lo) & (current_range < hi) & (past_range > lo) & (past_range < hi)
+    out = np.zeros_like(current_range, dtype=np.float32)
+    r0 = current_range[valid]
+    out[valid] = np.abs(r0 - past_range[valid]) / r0
+    return out
+
+
+def past_range_image(
+    past_points: np.ndarray, past_pose: np.ndarray, current_pose: np.ndarray, sensor: SensorConfig
+) -> np.ndarray:
+    """The range image of a past scan as seen from the current scan's pose."""
+    moved = transform_points(past_points, relative_pose(current_pose, past_pose))
+    return project_range(moved, sensor)
+
+
+def residual_images(
+    current_range: np.ndarray,
+    current_pose: np.ndarray,
+    past_scans: list[tuple[np.ndarray, np.ndarray]],
+    n: int,
+    sensor: SensorConfig,
+    config: ResidualConfig,
+) -> np.ndarray:
+    """(n, H, W) residuals against the past scans, newest first; missing ones stay 0.
+
+    ``past_scans`` holds (points in their own sensor frame, world pose), newest first.
+    Fewer than ``n`` entries happen at a sequence start or after a buffer reset: the
+    missing channels are zero, which is what the network saw in training for that case.
+    """
+    out = np.zeros((n, sensor.height, sensor.width), dtype=np.float32)
+    for j, (points, pose) in enumerate(past_scans[:n]):
+        out[j] = residual_image(current_range, past_range_image(points, pose, current_pose, sensor), config)
+    return out
