@@ -1,0 +1,166 @@
+"""Export a trained network to the ONNX model the core runtime loads without torch.
+
+The exported graph is ``softmax(net(input))``: input ``"input"`` (1, C, H, W) float32,
+output ``"probability"`` (1, n_classes, H, W) with channel 1 = moving.  The model's
+:class:`~ros2_mos.metadata.ModelMetadata` (setup, sensor, normalisation, network,
+training data, valid IoU) is stored as JSON in the ONNX ``metadata_props`` under
+:data:`~ros2_mos.metadata.METADATA_KEY`, so a model file is self-describing.
+
+Every export is checked: ONNX Runtime must reproduce the PyTorch output on a random
+input, otherwise the file is deleted and :class:`ModelError` raised — a silently
+wrong model on a robot is worse than no model.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from ros2_mos.errors import ModelError
+from ros2_mos.metadata import METADATA_KEY, ModelMetadata
+
+INPUT_NAME = "input"
+OUTPUT_NAME = "probability"
+DEFAULT_OPSET = 17
+
+
+class ProbabilityHead(nn.Module):
+    """Wrap a logits network so that the exported graph ends in a softmax over classes."""
+
+    def __init__(self, net: nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.softmax(self.net(x), dim=1)
+
+
+@dataclass
+class ExportReport:
+    """What an export produced and how closely ONNX Runtime matched PyTorch."""
+
+    path: Path
+    max_abs_diff: float
+    size_bytes: int
+
+
+def _torch_to_onnx_bytes(wrapped: nn.Module, example: torch.Tensor, opset: int) -> bytes:
+    """Run torch.onnx.export into memory; the TorchScript exporter is fast and exact for these CNNs."""
+    buffer = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            wrapped,
+            (example,),
+            buffer,
+            input_names=[INPUT_NAME],
+            output_names=[OUTPUT_NAME],
+            opset_version=opset,
+            do_constant_folding=True,
+            dynamo=False,
+        )
+    return buffer.getvalue()
+
+
+def export_onnx(
+    model: nn.Module,
+    metadata: ModelMetadata,
+    path: str | Path,
+    *,
+    opset: int = DEFAULT_OPSET,
+    check: bool = True,
+    atol: float = 1e-4,
+    seed: int = 0,
+) -> ExportReport:
+    """Export ``model`` (logits network) with a softmax head and ``metadata`` to ``path``.
+
+    The input shape is (1, metadata.input.channels, sensor.height, sensor.width).
+    With ``check`` the file is run in ONNX Runtime on a random normal input and
+    compared with PyTorch; a max abs difference above ``atol`` raises ModelError.
+    """
+    import onnx
+
+    path = Path(path)
+    channels = metadata.input.channels
+    h, w = metadata.sensor.height, metadata.sensor.width
+    was_training = model.training
+    model.eval()
+    try:
+        wrapped = ProbabilityHead(model).eval()
+        generator = torch.Generator().manual_seed(seed)
+        example = torch.randn(1, channels, h, w, generator=generator)
+        with torch.no_grad():
+            try:
+                reference = wrapped(example)
+            except RuntimeError as exc:
+                raise ModelError(
+                    f"the network does not accept a (1, {channels}, {h}, {w}) input: {exc}"
+                ) from None
+            if reference.shape[0] != 1 or reference.shape[2:] != (h, w) or reference.shape[1] < 2:
+                raise ModelError(f"the network maps (1, {channels}, {h}, {w}) to {tuple(reference.shape)}")
+            raw = _torch_to_onnx_bytes(wrapped, example, opset)
+    finally:
+        model.train(was_training)
+
+    proto = onnx.load_from_string(raw)
+    del proto.metadata_props[:]
+    entry = proto.metadata_props.add()
+    entry.key = METADATA_KEY
+    entry.value = metadata.to_json()
+    proto.producer_name = "ros2_mos"
+    proto.doc_string = f"ros2_mos MOS model: {metadata.network}, {metadata.input.label}, {metadata.sensor.name}"
+    onnx.checker.check_model(proto)
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # Write atomically so that a node never loads a half-written model.
+    fd, tmp_name = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        onnx.save(proto, tmp)
+        max_diff = 0.0
+        if check:
+            max_diff = _check_with_onnxruntime(tmp, example.numpy(), reference.numpy())
+            if not max_diff <= atol:
+                raise ModelError(
+                    f"ONNX Runtime disagrees with PyTorch after export: max abs diff {max_diff:.3g} > {atol:.3g}"
+                )
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return ExportReport(path=path, max_abs_diff=max_diff, size_bytes=path.stat().st_size)
+
+
+def _check_with_onnxruntime(path: Path, example: np.ndarray, reference: np.ndarray) -> float:
+    """Max abs difference between ONNX Runtime's and PyTorch's output on ``example``."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = max(1, min(2, os.cpu_count() or 1))
+    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    (out,) = session.run([OUTPUT_NAME], {INPUT_NAME: example.astype(np.float32)})
+    if out.shape != reference.shape:
+        raise ModelError(f"ONNX output shape {out.shape} differs from PyTorch's {reference.shape}")
+    return float(np.max(np.abs(out - reference)))
+
+
+def read_metadata(path: str | Path) -> ModelMetadata:
+    """The ModelMetadata stored in an exported model (for tests and tools; the runtime has its own)."""
+    import onnx
+
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"model file not found: {path}")
+    proto = onnx.load(str(path), load_external_data=False)
+    for entry in proto.metadata_props:
+        if entry.key == METADATA_KEY:
+            return ModelMetadata.from_json(entry.value)
+    raise ModelError(f"{path}: no {METADATA_KEY!r} metadata in the ONNX model")
