@@ -154,8 +154,13 @@ class OdometryConfig:
     # A relative motion larger than this between two scans (10 Hz) is treated as a
     # failure of the odometry: the scan buffer is reset instead of producing garbage residuals.
     max_translation_jump: float = 5.0
+    # 'all': KISS-ICP's map takes every point (plain KISS-ICP); 'static': only the points MOS
+    # labelled static, so that moving objects never enter the map the next scans register to.
+    map_update: str = "all"
 
     def __post_init__(self) -> None:
+        if self.map_update not in ("all", "static"):
+            raise ConfigError(f"odometry map_update must be 'all' or 'static', got {self.map_update!r}")
         if not (0.0 <= self.min_range < self.max_range):
             raise ConfigError(f"odometry: need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
         if self.voxel_size is not None and self.voxel_size <= 0:

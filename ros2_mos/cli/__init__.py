@@ -5,6 +5,6 @@ onnxruntime, rclpy) happen inside the commands so that ``--help`` stays instant.
 """
 
 from ros2_mos.cli.app import app, main
-# command modules are imported below as they are added
+from ros2_mos.cli import core_commands  # noqa: F401  (infer, eval)
 
 __all__ = ["app", "main"]

@@ -1,0 +1,82 @@
+"""``infer`` and ``eval``: the pipeline over a sequence folder, and the benchmark's score."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from ros2_mos.cli.app import app
+
+
+def load_config(config: Optional[Path], model: Optional[Path]):
+    """The pipeline configuration from a YAML file (or defaults), with ``--model`` on top."""
+    import dataclasses
+
+    from ros2_mos.config import MosConfig
+
+    cfg = MosConfig.from_yaml(config) if config else MosConfig()
+    if model is not None:
+        cfg = dataclasses.replace(cfg, model=str(model))
+    return cfg
+
+
+@app.command()
+def infer(
+    sequence_dir: Path = typer.Argument(..., help="SemanticKITTI sequence folder (needs only velodyne/*.bin) or a dataset root"),
+    out: Path = typer.Option(..., "--out", help="Output root: writes sequences/XX/predictions/*.label"),
+    model: Optional[Path] = typer.Option(None, help="ONNX model exported by `ros2-mos export` (default: the shipped model)"),
+    config: Optional[Path] = typer.Option(None, help="Pipeline YAML (see config/mos.yaml, the `mos_node` section)"),
+    sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences of a dataset root"),
+    use_poses: bool = typer.Option(False, "--use-poses", help="Use the dataset's poses.txt instead of KISS-ICP"),
+) -> None:
+    """Label every scan of a sequence (moving 251 / static 9, the benchmark's submission format)."""
+    from tqdm import tqdm
+
+    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, sequence_dirs
+    from ros2_mos.evaluation import predict_sequence, write_prediction
+    from ros2_mos.metrics import MovingIoU
+    from ros2_mos.pipeline import MosPipeline
+
+    pipeline = MosPipeline(load_config(config, model))
+    typer.echo(f"model {pipeline.model.path.name}: {pipeline.model.metadata.network}, "
+               f"{pipeline.setup.label}, sensor {pipeline.sensor.name}, provider {pipeline.model.provider}")
+    for seq_dir in sequence_dirs(sequence_dir, sequences):
+        seq = SemanticKittiSequence(seq_dir)
+        score = MovingIoU()
+        totals: list[float] = []
+        for pred in tqdm(predict_sequence(pipeline, seq, use_poses), total=len(seq), desc=f"sequence {seq.name}"):
+            write_prediction(out, seq, pred.index, pred.result.labels)
+            totals.append(pred.result.timings["total"])
+            if pred.gt_classes is not None:
+                score.update(pred.result.labels, pred.gt_classes)
+        totals.sort()
+        line = f"sequence {seq.name}: {len(seq)} scans, median {totals[len(totals) // 2]:.1f} ms/scan"
+        if seq.has_labels:
+            line += f", moving IoU {100 * score.iou:.1f}"
+        typer.echo(line)
+
+
+@app.command("eval")
+def evaluate(
+    pred_dir: Path = typer.Argument(..., help="Predictions root (sequences/XX/predictions/*.label)"),
+    gt_dir: Path = typer.Argument(..., help="Ground-truth root (sequences/XX/labels/*.label) or one sequence folder"),
+    sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences"),
+) -> None:
+    """Moving IoU per sequence and over all, as the SemanticKITTI MOS benchmark defines it."""
+    from ros2_mos.evaluation import evaluate_predictions
+    from ros2_mos.metrics import MovingIoU
+
+    scores = evaluate_predictions(pred_dir, gt_dir, sequences)
+    total = MovingIoU()
+    typer.echo(f"{'sequence':>10} {'IoU':>7} {'TP':>10} {'FP':>10} {'FN':>10}")
+    for name, s in scores.items():
+        total = total + s
+        typer.echo(f"{name:>10} {_pct(s.iou):>7} {s.tp:>10} {s.fp:>10} {s.fn:>10}")
+    typer.echo(f"{'all':>10} {_pct(total.iou):>7} {total.tp:>10} {total.fp:>10} {total.fn:>10}")
+
+
+def _pct(x: float) -> str:
+    return "n/a" if math.isnan(x) else f"{100 * x:.1f}"

@@ -1,0 +1,79 @@
+"""Running the pipeline over SemanticKITTI sequences and scoring predictions as the benchmark does.
+
+Predictions are written in the MOS benchmark's submission layout,
+``<out>/sequences/XX/predictions/NNNNNN.label`` with 9 = static and 251 = moving.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_label, write_label, sequence_dirs
+from ros2_mos.errors import DatasetError
+from ros2_mos.labels import SUBMISSION_MOVING_ID, semantic_ids, to_moving_classes, to_submission
+from ros2_mos.metrics import MovingIoU
+from ros2_mos.pipeline import MosPipeline, MosResult
+
+
+@dataclass
+class ScanPrediction:
+    index: int
+    result: MosResult
+    gt_classes: np.ndarray | None
+
+
+def predict_sequence(
+    pipeline: MosPipeline, sequence: SemanticKittiSequence, use_dataset_poses: bool = False
+) -> Iterator[ScanPrediction]:
+    """Label every scan of a sequence in order (the pipeline is reset first)."""
+    if use_dataset_poses and sequence.poses is None:
+        raise DatasetError(f"{sequence.root}: --use-poses needs poses.txt")
+    pipeline.reset()
+    for frame in sequence:
+        pose = frame.pose if use_dataset_poses else None
+        result = pipeline.process(frame.points, frame.remission, frame.timestamp, pose=pose)
+        gt = None if frame.labels is None else to_moving_classes(frame.labels)
+        yield ScanPrediction(frame.index, result, gt)
+
+
+def prediction_dir(out_root: str | Path, sequence_name: str) -> Path:
+    return Path(out_root) / "sequences" / sequence_name / "predictions"
+
+
+def write_prediction(out_root: str | Path, sequence: SemanticKittiSequence, index: int, moving: np.ndarray) -> None:
+    path = prediction_dir(out_root, sequence.name) / (sequence.scan_files[index].stem + ".label")
+    write_label(path, to_submission(moving))
+
+
+def evaluate_predictions(
+    pred_root: str | Path,
+    gt_root: str | Path,
+    sequences: list[str] | None = None,
+    progress: Callable[[Iterator], Iterator] = lambda it: it,
+) -> dict[str, MovingIoU]:
+    """Moving IoU per sequence for a submission folder against SemanticKITTI ground truth."""
+    gt_dirs = {p.name: p for p in sequence_dirs(gt_root, sequences)}
+    scores: dict[str, MovingIoU] = {}
+    for name, gt_dir in gt_dirs.items():
+        pred_dir = prediction_dir(pred_root, name)
+        if not pred_dir.is_dir():
+            if sequences is None:
+                continue
+            raise DatasetError(f"no predictions for sequence {name}: {pred_dir} is missing")
+        gt_seq = SemanticKittiSequence(gt_dir)
+        if not gt_seq.has_labels:
+            raise DatasetError(f"{gt_dir}: no labels/ to evaluate against")
+        score = MovingIoU()
+        for i in progress(range(len(gt_seq))):
+            gt = read_label(gt_seq.label_path(i))
+            pred_file = pred_dir / (gt_seq.scan_files[i].stem + ".label")
+            pred = read_label(pred_file, len(gt))
+            score.update(semantic_ids(pred) == SUBMISSION_MOVING_ID, to_moving_classes(gt))
+        scores[name] = score
+    if not scores:
+        raise DatasetError(f"no sequence of {gt_root} has predictions under {pred_root}/sequences")
+    return scores

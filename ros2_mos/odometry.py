@@ -1,0 +1,127 @@
+"""Online odometry (KISS-ICP) and the ring buffer of past scans the residuals need.
+
+KISS-ICP's ``register_frame`` registers a scan and adds it to its local map in one
+step.  We split the two so that the map can be updated with the *static* points of
+the MOS decision for the same scan (``map_update='static'``): the pose of scan t
+is estimated before its labels exist (the residuals need it), so this is the
+causal way to keep moving objects out of the registration of every later scan.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from ros2_mos.config import OdometryConfig
+from ros2_mos.errors import ConfigError
+
+
+class KissIcpOdometry:
+    """KISS-ICP on each incoming scan; ``last_pose`` is the 4x4 world pose of the newest scan."""
+
+    def __init__(self, config: OdometryConfig = OdometryConfig()) -> None:
+        from kiss_icp.config import load_config
+        from kiss_icp.kiss_icp import KissICP
+
+        cfg = load_config(None)
+        cfg.data.max_range = config.max_range
+        cfg.data.min_range = config.min_range
+        cfg.data.deskew = config.deskew
+        cfg.mapping.voxel_size = config.voxel_size if config.voxel_size is not None else config.max_range / 100.0
+        self.config = config
+        self._kiss_config = cfg
+        self._kiss_class = KissICP
+        self._kiss = KissICP(cfg)
+        self._pending_frame: np.ndarray | None = None
+
+    @property
+    def last_pose(self) -> np.ndarray:
+        return self._kiss.last_pose.copy()
+
+    def reset(self) -> None:
+        """Forget the map and the motion model (after a time jump or a detected failure)."""
+        self._kiss = self._kiss_class(self._kiss_config)
+        self._pending_frame = None
+
+    def estimate(self, points: np.ndarray, timestamps: np.ndarray | None = None) -> np.ndarray:
+        """Register a scan against the local map and return its world pose, without updating the map.
+
+        Call :meth:`update_map` afterwards (with all or only static points) before the next scan.
+        """
+        kiss = self._kiss
+        frame = np.asarray(points, dtype=np.float64)
+        stamps = np.asarray([] if timestamps is None else timestamps, dtype=np.float64)
+        frame = kiss.preprocessor.preprocess(frame, stamps, kiss.last_delta)
+        source, frame_downsample = kiss.voxelize(frame)
+        sigma = kiss.adaptive_threshold.get_threshold()
+        initial_guess = kiss.last_pose @ kiss.last_delta
+        new_pose = kiss.registration.align_points_to_map(
+            points=source,
+            voxel_map=kiss.local_map,
+            initial_guess=initial_guess,
+            max_correspondance_distance=3 * sigma,
+            kernel=sigma,
+        )
+        kiss.adaptive_threshold.update_model_deviation(np.linalg.inv(initial_guess) @ new_pose)
+        kiss.last_delta = np.linalg.inv(kiss.last_pose) @ new_pose
+        kiss.last_pose = new_pose
+        self._pending_frame = frame_downsample
+        return new_pose.copy()
+
+    def update_map(self, static_points: np.ndarray | None = None) -> None:
+        """Add the last estimated scan to the local map: all its points, or only ``static_points``.
+
+        ``static_points`` are in the scan's own sensor frame; they are downsampled like KISS-ICP does.
+        """
+        kiss = self._kiss
+        if static_points is None:
+            if self._pending_frame is None:
+                return
+            frame = self._pending_frame
+        else:
+            _, frame = kiss.voxelize(np.asarray(static_points, dtype=np.float64))
+        kiss.local_map.update(frame, kiss.last_pose)
+        self._pending_frame = None
+
+    def register(self, points: np.ndarray, timestamps: np.ndarray | None = None) -> np.ndarray:
+        """Estimate the pose and update the map with the whole scan (plain KISS-ICP)."""
+        pose = self.estimate(points, timestamps)
+        self.update_map()
+        return pose
+
+
+@dataclass
+class BufferedScan:
+    points: np.ndarray  # (N, 3) float32 in the scan's own sensor frame
+    remission: np.ndarray  # (N,) float32
+    pose: np.ndarray  # (4, 4) world pose
+    timestamp: float
+
+
+class ScanBuffer:
+    """The last ``capacity`` scans with their world poses, newest first."""
+
+    def __init__(self, capacity: int) -> None:
+        if capacity < 0:
+            raise ConfigError(f"scan buffer capacity must be >= 0, got {capacity}")
+        self.capacity = capacity
+        self._scans: deque[BufferedScan] = deque(maxlen=capacity) if capacity > 0 else deque(maxlen=0)
+
+    def __len__(self) -> int:
+        return len(self._scans)
+
+    def push(self, scan: BufferedScan) -> None:
+        if self.capacity > 0:
+            self._scans.appendleft(scan)
+
+    def newest_first(self) -> list[BufferedScan]:
+        return list(self._scans)
+
+    def clear(self) -> None:
+        self._scans.clear()
+
+    @property
+    def full(self) -> bool:
+        return len(self._scans) >= self.capacity

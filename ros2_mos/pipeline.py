@@ -1,0 +1,192 @@
+"""The MOS pipeline: one scan in, one moving/static label per point out.
+
+The node, the CLI (``infer``, ``process``, ``bench``) and the evaluation all call
+:class:`MosPipeline`, so nothing is computed differently offline and online::
+
+    odometry -> projection -> residuals -> network -> kNN back-projection -> map update
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ros2_mos.config import MosConfig, SensorConfig
+from ros2_mos.errors import ConfigError, ScanError
+from ros2_mos.features import assemble_input
+from ros2_mos.inference import MosModel
+from ros2_mos.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
+from ros2_mos.postprocess import backproject
+from ros2_mos.projection import RangeImage, check_points, finite_mask, project
+from ros2_mos.residuals import relative_pose, residual_images, transform_points
+
+
+@dataclass
+class MosResult:
+    """Everything one scan produced; per-point arrays have one entry per *input* point."""
+
+    labels: np.ndarray  # (N,) uint8: 1 moving, 0 static (also 0 for invalid points)
+    probability: np.ndarray  # (N,) float32 moving probability (0 for invalid points)
+    valid: np.ndarray  # (N,) bool: finite with positive range, so it was used
+    pose: np.ndarray  # (4, 4) world pose of the scan
+    range_image: np.ndarray  # (H, W) float32, 0 where empty
+    probability_image: np.ndarray  # (H, W) float32 per-pixel moving probability
+    mask_image: np.ndarray  # (H, W) uint8 per-pixel moving label (0 where empty)
+    residuals: np.ndarray  # (n_past, H, W) residual images (empty for 'frames' setups)
+    n_past_available: int  # how many past scans the residuals/frames were computed from
+    n_past_required: int
+    timings: dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def residuals_complete(self) -> bool:
+        """False at a sequence start or after a buffer reset (missing residuals were zero)."""
+        return self.n_past_available >= self.n_past_required
+
+    @property
+    def degraded(self) -> bool:
+        """Labels were computed with less information than the model was trained for."""
+        return not self.residuals_complete or bool(self.warnings)
+
+
+class _Stopwatch:
+    """Per-stage wall-clock timings in milliseconds."""
+
+    def __init__(self) -> None:
+        self.timings: dict[str, float] = {}
+        self._start = self._last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.timings[stage] = (now - self._last) * 1e3
+        self._last = now
+
+    def total(self) -> None:
+        self.timings["total"] = (time.perf_counter() - self._start) * 1e3
+
+
+class MosPipeline:
+    """Online MOS over a stream of scans from one sensor."""
+
+    def __init__(self, config: MosConfig = MosConfig(), model: MosModel | None = None) -> None:
+        self.config = config
+        self.model = model if model is not None else MosModel(config.model, intra_op_threads=config.intra_op_threads)
+        meta = self.model.metadata
+        self.setup = meta.input
+        self.sensor: SensorConfig = config.sensor or meta.sensor
+        if (self.sensor.height, self.sensor.width) != (meta.sensor.height, meta.sensor.width):
+            raise ConfigError(
+                f"sensor {self.sensor.name} projects to {self.sensor.height} x {self.sensor.width} but the model "
+                f"was trained for {meta.sensor.name} at {meta.sensor.height} x {meta.sensor.width}; "
+                "use a model trained for this sensor"
+            )
+        self.means = np.asarray(meta.means, np.float32)
+        self.stds = np.asarray(meta.stds, np.float32)
+        self.odometry = KissIcpOdometry(config.odometry)
+        self.buffer = ScanBuffer(self.setup.n_past)
+        self._last_stamp: float | None = None
+        self._last_pose: np.ndarray | None = None
+
+    @property
+    def n_past(self) -> int:
+        return self.setup.n_past
+
+    def reset(self) -> None:
+        """Forget past scans and the odometry map (time went backwards, odometry failed, ...)."""
+        self.buffer.clear()
+        self.odometry.reset()
+        self._last_stamp = None
+        self._last_pose = None
+
+    def process(
+        self, points: np.ndarray, intensity: np.ndarray | None, timestamp: float, pose: np.ndarray | None = None
+    ) -> MosResult:
+        """Label one scan. ``pose`` (4x4 world pose) skips the odometry, e.g. with a dataset's poses.
+
+        Non-finite and zero-range points are left out and marked invalid; a scan with no
+        usable point, or of the wrong shape, raises :class:`ScanError`.
+        """
+        watch = _Stopwatch()
+        pts = check_points(points)
+        n = len(pts)
+        if n == 0:
+            raise ScanError("empty scan: no points")
+        rem = np.zeros(n, np.float32) if intensity is None else np.asarray(intensity, np.float32).reshape(-1)
+        if len(rem) != n:
+            raise ScanError(f"intensity has {len(rem)} values for {n} points")
+        valid = finite_mask(pts)
+        n_valid = int(valid.sum())
+        if n_valid == 0:
+            raise ScanError(f"scan has no finite point with positive range (all {n} points invalid)")
+        xyz = np.ascontiguousarray(pts[valid], dtype=np.float32)
+        e = np.nan_to_num(rem[valid], nan=0.0, posinf=0.0, neginf=0.0)
+
+        warnings: list[str] = []
+        if self._last_stamp is not None and timestamp <= self._last_stamp:
+            warnings.append(f"time went backwards ({self._last_stamp:.3f} -> {timestamp:.3f} s): buffer reset")
+            self.reset()
+        watch.lap("validate")
+
+        if pose is None:
+            pose = self.odometry.estimate(xyz)
+        pose = np.asarray(pose, dtype=np.float64)
+        if self._last_pose is not None:
+            jump = float(np.linalg.norm(relative_pose(self._last_pose, pose)[:3, 3]))
+            if jump > self.config.odometry.max_translation_jump:
+                warnings.append(f"pose jumped {jump:.1f} m in one scan: odometry suspect, buffer reset")
+                self.buffer.clear()
+        watch.lap("odometry")
+
+        image = project(xyz, e, self.sensor)
+        watch.lap("projection")
+
+        past = self.buffer.newest_first()
+        if self.setup.kind == "residual":
+            residuals = residual_images(
+                image.range, pose, [(s.points, s.pose) for s in past], self.n_past, self.sensor, self.config.residuals
+            )
+            extra: np.ndarray | list[RangeImage] = residuals
+        else:
+            residuals = np.zeros((0, self.sensor.height, self.sensor.width), np.float32)
+            extra = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor) for s in past]
+        watch.lap("residuals")
+
+        network_input = assemble_input(image, extra, self.setup, self.means, self.stds)
+        prob_image = self.model.predict(network_input)
+        watch.lap("inference")
+
+        point_prob = backproject(prob_image, image.range, image.pixels, self.config.postprocess)
+        moving = point_prob >= self.config.threshold
+        watch.lap("postprocess")
+
+        if self.config.odometry.map_update == "static":
+            self.odometry.update_map(xyz[~moving])
+        else:
+            self.odometry.update_map()
+        self.buffer.push(BufferedScan(points=xyz, remission=e, pose=pose, timestamp=timestamp))
+        self._last_stamp = timestamp
+        self._last_pose = pose
+        watch.lap("map_update")
+
+        labels = np.zeros(n, np.uint8)
+        labels[valid] = moving
+        probability = np.zeros(n, np.float32)
+        probability[valid] = point_prob
+        mask_image = ((prob_image >= self.config.threshold) & image.mask).astype(np.uint8)
+        watch.total()
+        return MosResult(
+            labels=labels,
+            probability=probability,
+            valid=valid,
+            pose=pose,
+            range_image=image.range,
+            probability_image=prob_image,
+            mask_image=mask_image,
+            residuals=residuals,
+            n_past_available=min(len(past), self.n_past),
+            n_past_required=self.n_past,
+            timings=watch.timings,
+            warnings=warnings,
+        )
