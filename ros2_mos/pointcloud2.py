@@ -359,19 +359,28 @@ def fill_cloud(
     return msg
 
 
+def _is_big_endian(dtype: np.dtype) -> bool:
+    """Byte order of a structured dtype's members; PointCloud2 carries one order per cloud."""
+    orders = set()
+    for name in dtype.names or ():
+        base = dtype.fields[name][0].base  # type: ignore[index]
+        if base.itemsize > 1:
+            orders.add(base.byteorder if base.byteorder != "=" else ("<" if np.little_endian else ">"))
+    if len(orders) > 1:
+        raise CloudFieldError("structured dtype mixes byte orders")
+    return orders == {">"}
+
+
 def fill_from_records(msg: Any, records: np.ndarray, *, field_factory: FieldFactory,
                       height: int = 1, is_dense: bool = True) -> Any:
-    """Fill an unorganised (or ``height``-row) cloud from a structured array of one dtype."""
+    """Fill an unorganised (or ``height``-row) cloud from a 1-D structured array."""
     fields = fields_for_dtype(records.dtype)
-    orders = {records.dtype.fields[n][0].base.byteorder for n in records.dtype.names}  # type: ignore[index]
-    big = ">" in orders or (np.little_endian is False and "=" in orders)
-    if big and ("<" in orders or (np.little_endian and "=" in orders)):
-        raise CloudFieldError("structured dtype mixes byte orders")
-    n = int(records.shape[0]) if records.ndim else 1
+    n = int(records.size)
     if height < 1 or n % height:
         raise CloudLayoutError(f"{n} points do not form {height} rows")
-    return fill_cloud(msg, fields, records.dtype.itemsize, records, width=n // height,
-                      height=height, is_bigendian=big, is_dense=is_dense, field_factory=field_factory)
+    return fill_cloud(msg, fields, records.dtype.itemsize, records, width=n // height, height=height,
+                      is_bigendian=_is_big_endian(records.dtype), is_dense=is_dense,
+                      field_factory=field_factory)
 
 
 XYZI_DTYPE = np.dtype(
@@ -459,17 +468,13 @@ def fill_with_extra_fields(
     raw = raw_points(view, index)
     m = raw.shape[0]
     order = _byteorder(view.is_bigendian)
-    names = ["_raw"]
-    formats: list[Any] = [np.dtype((np.void, view.point_step))] if view.point_step else []
-    offsets = [0]
-    if not view.point_step:
-        names, offsets = [], []
-    new_fields = list(view.fields)
+    added: list[tuple[Field, np.dtype, np.ndarray]] = []
+    taken = set(view.names)
     offset = view.point_step
-    values: list[np.ndarray] = []
     for name, value in extra:
-        if name in view.names or name in [f.name for f in new_fields[len(view.fields):]]:
+        if name in taken:
             raise CloudFieldError(f"cannot add field {name!r}: the cloud already has one")
+        taken.add(name)
         arr = np.asarray(value).reshape(-1)
         if arr.shape[0] != m:
             raise ScanError(f"field {name!r} has {arr.shape[0]} values for {m} points")
@@ -477,18 +482,14 @@ def fill_with_extra_fields(
         if base not in _NUMPY_TO_DATATYPE:
             raise CloudFieldError(f"field {name!r} has a dtype PointCloud2 cannot carry: {arr.dtype}")
         offset = _align(offset, base.itemsize)
-        names.append(name)
-        formats.append(base.newbyteorder(order))
-        offsets.append(offset)
-        new_fields.append(Field(name, offset, _NUMPY_TO_DATATYPE[base], 1))
-        values.append(arr)
+        added.append((Field(name, offset, _NUMPY_TO_DATATYPE[base], 1), base.newbyteorder(order), arr))
         offset += base.itemsize
     point_step = _align(offset, 4)
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
-    records = np.zeros(m, dtype=dtype)
-    if view.point_step:
-        records["_raw"] = raw.view(np.dtype((np.void, view.point_step))).reshape(m)
-    for name, arr in zip(names[-len(values):] if values else [], values):
-        records[name] = arr
-    return fill_cloud(msg_out, new_fields, point_step, records, width=m,
+    out = np.zeros((m, point_step), dtype=np.uint8)
+    out[:, : view.point_step] = raw
+    for field, dtype, arr in added:
+        # Each new column is written through a strided view of its bytes in the output rows.
+        column = out[:, field.offset : field.offset + dtype.itemsize]
+        column.view(dtype)[:, 0] = arr
+    return fill_cloud(msg_out, view.fields + tuple(f for f, _, _ in added), point_step, out, width=m,
                       is_bigendian=view.is_bigendian, is_dense=True, field_factory=field_factory)
