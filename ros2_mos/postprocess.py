@@ -7,7 +7,7 @@ RangeNet++'s kNN post-processing fixes that: for each point, look at the
 the point by an inverse Gaussian of the pixel offset, take the ``k`` closest, drop
 those farther than ``cutoff`` metres, and vote.  We vote with probabilities (the
 mean moving probability of the kept neighbours), so label and probability agree;
-the point's own pixel is always a candidate (its distance is 0).
+the point's own pixel is always one of the k.
 """
 
 from __future__ import annotations
@@ -51,8 +51,10 @@ def knn_backproject(
     empty = outside | (neighbour_range <= 0)
     dist = np.abs(neighbour_range - pixels.range[:, None])
     dist[empty] = np.inf
-    dist[:, (config.window * config.window) // 2] = 0.0  # the point's own pixel, at its own range
     dist *= _inverse_gaussian(config.window, config.sigma)[None, :]
+    # The point's own pixel, at the point's own range, is always among the k (ties with
+    # neighbours at distance 0 would otherwise make the choice arbitrary).
+    dist[:, (config.window * config.window) // 2] = -1.0
     k = config.k
     if k < dist.shape[1]:
         nearest = np.argpartition(dist, k - 1, axis=1)[:, :k]

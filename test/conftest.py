@@ -1,0 +1,50 @@
+"""Shared fixtures: a real (non-learned) ONNX model exported with the project's exporter.
+
+``tiny_model_path`` is the paper's "Residual" baseline as a network: a pixel is moving
+when its largest residual exceeds a threshold.  It is exact, tiny and needs no training,
+so the pipeline, the node and the CLI can be tested end to end before and beside the
+trained default model.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from ros2_mos.config import SensorConfig  # noqa: E402
+
+TEST_SENSOR = SensorConfig("test32", height=32, width=512, fov_up_deg=10.0, fov_down_deg=-20.0, min_range=0.0, max_range=100.0)
+
+
+def make_threshold_model(path: Path, sensor: SensorConfig = TEST_SENSOR, n_past: int = 2, threshold: float = 0.08) -> Path:
+    """Export the thresholded-residual baseline as an ONNX model with metadata."""
+    import torch
+    from torch import nn
+
+    from ros2_mos.features import InputSetup
+    from ros2_mos.metadata import ModelMetadata
+    from ros2_mos.training.export import export_onnx
+
+    class ResidualThreshold(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.gain, self.threshold = 200.0, threshold
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            d = x[:, 5:].amax(dim=1, keepdim=True)
+            moving = self.gain * (d - self.threshold)
+            return torch.cat([torch.zeros_like(moving), moving], dim=1)
+
+    meta = ModelMetadata(network="residual-threshold", input=InputSetup("residual", n_past), sensor=sensor,
+                         trained_on="none (hand-set threshold)")
+    export_onnx(ResidualThreshold(), meta, path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def tiny_model_path(tmp_path_factory) -> Path:
+    return make_threshold_model(tmp_path_factory.mktemp("models") / "threshold.onnx")

@@ -1,0 +1,139 @@
+"""MosPipeline on analytic scenes with a real ONNX model: shapes, degradation, errors, odometry."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from conftest import TEST_SENSOR, make_threshold_model
+from scenes import street_sequence
+from ros2_mos.config import MosConfig, OdometryConfig, PostprocessConfig, SensorConfig
+from ros2_mos.errors import ConfigError, ModelError, ScanError
+from ros2_mos.inference import MosModel
+from ros2_mos.metrics import MovingIoU
+from ros2_mos.pipeline import MosPipeline
+
+
+@pytest.fixture
+def pipeline(tiny_model_path):
+    return MosPipeline(MosConfig(model=str(tiny_model_path)))
+
+
+def test_moving_box_is_found_with_given_poses(pipeline):
+    score = MovingIoU()
+    for i, (pts, rem, gt, pose) in enumerate(street_sequence(6)):
+        res = pipeline.process(pts, rem, 0.1 * i, pose=pose)
+        assert res.labels.shape == (len(pts),) and res.probability.shape == (len(pts),)
+        assert res.residuals.shape == (2, TEST_SENSOR.height, TEST_SENSOR.width)
+        assert res.n_past_available == min(i, 2)
+        assert res.residuals_complete == (i >= 2)
+        if i >= 2:
+            score.update(res.labels, gt)
+    assert score.iou > 0.5, score
+
+
+def test_kiss_icp_odometry_tracks_the_ego_motion(pipeline):
+    poses = []
+    for i, (pts, rem, gt, pose) in enumerate(street_sequence(8, ego_speed=1.0)):
+        poses.append(pipeline.process(pts, rem, 0.1 * i).pose)
+    travelled = poses[-1][:3, 3] - poses[0][:3, 3]
+    np.testing.assert_allclose(travelled, [7.0, 0.0, 0.0], atol=0.15)
+
+
+def test_nan_points_are_dropped_and_flagged(pipeline):
+    pts, rem, _, pose = street_sequence(1)[0]
+    pts = pts.copy()
+    pts[::10] = np.nan
+    pts[1] = 0.0
+    res = pipeline.process(pts, rem, 0.0, pose=pose)
+    assert not res.valid[::10].any() and not res.valid[1]
+    assert res.valid.sum() == len(pts) - len(pts[::10]) - 1
+    assert (res.labels[~res.valid] == 0).all() and (res.probability[~res.valid] == 0).all()
+
+
+@pytest.mark.parametrize(
+    "points, message",
+    [
+        (np.zeros((0, 3), np.float32), "empty"),
+        (np.full((10, 3), np.nan, np.float32), "no finite point"),
+        (np.zeros((10, 4), np.float32), r"\(N, 3\)"),
+        (np.zeros(30, np.float32), r"\(N, 3\)"),
+    ],
+)
+def test_malformed_scans_raise_clear_errors(pipeline, points, message):
+    with pytest.raises(ScanError, match=message):
+        pipeline.process(points, None, 0.0)
+
+
+def test_intensity_length_mismatch_is_an_error(pipeline):
+    pts = street_sequence(1)[0][0]
+    with pytest.raises(ScanError, match="intensity"):
+        pipeline.process(pts, np.zeros(3), 0.0)
+
+
+def test_time_going_backwards_resets_the_buffer(pipeline):
+    seq = street_sequence(3)
+    for i, (pts, rem, _, pose) in enumerate(seq):
+        pipeline.process(pts, rem, 1.0 + 0.1 * i, pose=pose)
+    res = pipeline.process(seq[0][0], seq[0][1], 0.5, pose=seq[0][3])
+    assert res.n_past_available == 0 and res.degraded
+    assert any("backwards" in w for w in res.warnings)
+
+
+def test_pose_jump_resets_the_buffer(pipeline):
+    seq = street_sequence(3)
+    for i, (pts, rem, _, pose) in enumerate(seq[:2]):
+        pipeline.process(pts, rem, 0.1 * i, pose=pose)
+    far = seq[2][3].copy()
+    far[0, 3] += 50.0
+    res = pipeline.process(seq[2][0], seq[2][1], 0.2, pose=far)
+    assert res.n_past_available == 0
+    assert any("jumped" in w for w in res.warnings)
+    assert not res.residuals.any()
+
+
+def test_missing_model_file_is_a_model_error(tmp_path):
+    with pytest.raises(ModelError, match="not found"):
+        MosPipeline(MosConfig(model=str(tmp_path / "nope.onnx")))
+
+
+def test_truncated_model_file_is_a_model_error(tmp_path, tiny_model_path):
+    broken = tmp_path / "broken.onnx"
+    broken.write_bytes(tiny_model_path.read_bytes()[:200])
+    with pytest.raises(ModelError, match="cannot load"):
+        MosModel(broken)
+
+
+def test_model_whose_channels_disagree_with_its_metadata_is_refused(tmp_path):
+    import onnx
+
+    from ros2_mos.metadata import METADATA_KEY, ModelMetadata
+
+    path = make_threshold_model(tmp_path / "m.onnx", n_past=2)
+    model = onnx.load(str(path))
+    prop = next(p for p in model.metadata_props if p.key == METADATA_KEY)
+    meta = ModelMetadata.from_json(prop.value)
+    meta.input = dataclasses.replace(meta.input, n_past=5)
+    prop.value = meta.to_json()
+    onnx.save(model, str(path))
+    with pytest.raises(ModelError, match="7 input channels|implies 10"):
+        MosModel(path)
+
+
+def test_sensor_with_other_beam_count_than_the_model_is_refused(tiny_model_path):
+    other = SensorConfig("other", 16, 512, 10.0, -20.0)
+    with pytest.raises(ConfigError, match="trained for"):
+        MosPipeline(MosConfig(model=str(tiny_model_path), sensor=other))
+
+
+def test_nearest_and_knn_modes_both_label_every_point(tiny_model_path):
+    pts, rem, _, pose = street_sequence(1)[0]
+    for mode in ("knn", "nearest"):
+        pipe = MosPipeline(MosConfig(model=str(tiny_model_path), postprocess=PostprocessConfig(mode=mode)))
+        assert pipe.process(pts, rem, 0.0, pose=pose).labels.shape == (len(pts),)
+
+
+def test_static_map_update_keeps_tracking(tiny_model_path):
+    pipe = MosPipeline(MosConfig(model=str(tiny_model_path), odometry=OdometryConfig(map_update="static")))
+    poses = [pipe.process(p, r, 0.1 * i).pose for i, (p, r, _, _) in enumerate(street_sequence(6))]
+    np.testing.assert_allclose(poses[-1][:3, 3] - poses[0][:3, 3], [5.0, 0, 0], atol=0.15)

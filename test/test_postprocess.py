@@ -1,0 +1,58 @@
+"""kNN back-projection on hand-made range images."""
+
+import numpy as np
+import pytest
+
+from ros2_mos.config import PostprocessConfig
+from ros2_mos.errors import ConfigError
+from ros2_mos.postprocess import backproject, knn_backproject, nearest_backproject
+from ros2_mos.projection import PixelIndex
+
+
+def pixels(rows, cols, ranges):
+    n = len(rows)
+    return PixelIndex(np.array(cols, np.int32), np.array(rows, np.int32), np.array(ranges, np.float32), np.ones(n, bool))
+
+
+def test_occluded_point_takes_the_label_of_neighbours_at_its_own_range():
+    # A moving pedestrian (prob 1) at 5 m covers pixel (2, 2); behind it a wall at 20 m (prob 0).
+    rng = np.full((5, 8), 20.0, np.float32)
+    prob = np.zeros((5, 8), np.float32)
+    rng[2, 2], prob[2, 2] = 5.0, 1.0
+    # Point A is the pedestrian itself; point B is a wall point that lost pixel (2, 2) to it.
+    pix = pixels([2, 2], [2, 2], [5.0, 20.0])
+    cfg = PostprocessConfig(k=5, window=5, sigma=1.0, cutoff=1.0)
+    np.testing.assert_allclose(nearest_backproject(prob, pix), [1.0, 1.0])
+    # A: only its own pixel lies within 1 m -> 1.  B: its own pixel (distance 0) votes 1,
+    # the 4 nearest wall pixels vote 0 -> mean 0.2.
+    np.testing.assert_allclose(knn_backproject(prob, rng, pix, cfg), [1.0, 0.2])
+
+
+def test_empty_pixels_and_far_neighbours_do_not_vote():
+    rng = np.zeros((3, 6), np.float32)
+    prob = np.ones((3, 6), np.float32)
+    rng[1, 3], prob[1, 3] = 10.0, 0.0
+    rng[1, 4], prob[1, 4] = 30.0, 1.0  # beyond the cut-off
+    pix = pixels([1], [3], [10.0])
+    assert knn_backproject(prob, rng, pix, PostprocessConfig(k=5, window=3))[0] == 0.0
+
+
+def test_window_wraps_around_in_azimuth():
+    rng = np.zeros((3, 6), np.float32)
+    prob = np.zeros((3, 6), np.float32)
+    rng[1, 0] = 10.0
+    rng[1, 5], prob[1, 5] = 10.2, 1.0  # the left neighbour of column 0 is column 5
+    pix = pixels([1], [0], [10.0])
+    assert knn_backproject(prob, rng, pix, PostprocessConfig(k=2, window=3))[0] == pytest.approx(0.5)
+
+
+def test_mode_nearest_uses_own_pixel():
+    prob = np.arange(12, dtype=np.float32).reshape(3, 4)
+    pix = pixels([0, 2], [1, 3], [1.0, 1.0])
+    np.testing.assert_array_equal(backproject(prob, prob, pix, PostprocessConfig(mode="nearest")), [1, 11])
+
+
+@pytest.mark.parametrize("kwargs", [{"mode": "bilateral"}, {"window": 4}, {"k": 0}, {"k": 10, "window": 3}, {"cutoff": 0}])
+def test_invalid_settings_are_rejected(kwargs):
+    with pytest.raises(ConfigError):
+        PostprocessConfig(**kwargs)
