@@ -8,3 +8,4 @@ from ros2_mos.cli.app import app, main
 from ros2_mos.cli import core_commands  # noqa: F401  (infer, eval)
 
 __all__ = ["app", "main"]
+from ros2_mos.cli import train_commands  # noqa: F401

@@ -1,0 +1,193 @@
+"""Training: dataset cache + augmentation, losses, one step lowers the loss, checkpoint resume, export."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from conftest import TEST_SENSOR  # noqa: E402
+from scenes import street_sequence  # noqa: E402
+
+from ros2_mos.datasets.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times  # noqa: E402
+from ros2_mos.features import InputSetup  # noqa: E402
+from ros2_mos.labels import IGNORE  # noqa: E402
+from ros2_mos.projection import project  # noqa: E402
+from ros2_mos.residuals import residual_images  # noqa: E402
+from ros2_mos.training.dataset import AugmentConfig, CacheSpec, MosDataset, SequenceCache, as_range_image, flip_y, rotate_columns  # noqa: E402
+from ros2_mos.training.losses import MosLoss, inverse_frequency_weights, lovasz_softmax  # noqa: E402
+from ros2_mos.training.trainer import TrainConfig, Trainer, export_checkpoint, load_checkpoint  # noqa: E402
+
+
+def write_sequence(root, name: str, n_scans: int = 5, seed: int = 0):
+    seq = root / "sequences" / name
+    poses = []
+    for i, (pts, rem, moving, pose) in enumerate(street_sequence(n_scans, seed=seed)):
+        write_scan(seq / "velodyne" / f"{i:06d}.bin", pts, rem)
+        write_label(seq / "labels" / f"{i:06d}.label", np.where(moving == 1, 252, 40).astype(np.uint32))
+        poses.append(pose)
+    write_calib(seq / "calib.txt")
+    write_poses(seq / "poses.txt", np.asarray(poses))
+    write_times(seq / "times.txt", np.arange(n_scans) * 0.1)
+    return seq
+
+
+@pytest.fixture(scope="module")
+def data_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("kitti")
+    write_sequence(root, "00", 5, seed=0)
+    write_sequence(root, "01", 3, seed=1)
+    return root
+
+
+def _config(data_root, tmp_path, **kw) -> TrainConfig:
+    base = dict(
+        network="fastmos", n_past=2, sensor=TEST_SENSOR.to_dict(), train_sequences=["00"], valid_sequences=["01"],
+        cache_dir=str(tmp_path / "cache"), out_dir=str(tmp_path / "run"), epochs=1, batch_size=2, lr=0.01,
+        cache_workers=1, cache_n_residual=3, cache_n_frames=1, warmup_epochs=0.0, drop_max=0.0,
+    )
+    base.update(kw)
+    return TrainConfig.from_dict(base)
+
+
+def test_cache_matches_the_core_pipeline(data_root, tmp_path):
+    spec = CacheSpec(sensor=TEST_SENSOR, n_residual=2, n_frames=1, with_points=True)
+    cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=2)
+    scans = street_sequence(5, seed=0)
+    i = 3
+    pts, rem, moving, pose = scans[i]
+    image = project(pts, rem, TEST_SENSOR)
+    expected = residual_images(image.range, pose, [(scans[j][0], scans[j][3]) for j in (2, 1)], 2, TEST_SENSOR, spec.residual)
+    np.testing.assert_allclose(cache.residual[i].astype(np.float32), expected, rtol=2e-3, atol=2e-3)
+    np.testing.assert_allclose(cache.frame[i, 0].astype(np.float32), image.range, rtol=1e-3)
+    lab = cache.label[i]
+    assert (lab[~image.mask] == IGNORE).all()
+    np.testing.assert_array_equal(lab[image.mask], moving[image.point_index[image.mask]])
+    assert (cache.residual[0] == 0).all()  # no past at the sequence start
+    assert cache.points(i)["u"].shape == (len(pts),)
+    # Opening again reuses the cache.
+    assert SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec).directory == cache.directory
+
+
+def test_image_space_rotation_and_flip_match_point_space(data_root, tmp_path):
+    """A column roll/reversal + x,y rotation/negation equals projecting rotated/flipped points."""
+    spec = CacheSpec(sensor=TEST_SENSOR, n_residual=1, n_frames=0)
+    cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=1)
+    setup = InputSetup("residual", 1)
+    ds = MosDataset([cache], setup, [0.0] * 5, [1.0] * 5)
+    current, extra, label = ds.components(2)
+    w = TEST_SENSOR.width
+    pts, rem = street_sequence(5, seed=0)[2][:2]
+    k = 37
+    theta = 2 * np.pi * k / w
+    c, s = np.cos(theta), np.sin(theta)
+    rot = pts @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], np.float32).T
+    ref = project(rot, rem, TEST_SENSOR)
+
+    cur2, _, _ = rotate_columns(current.copy(), extra.copy(), label.copy(), k, frames_kind=False)
+    # Pixels that agree in occupancy (floor at pixel edges may move a few by one column).
+    both = (cur2[0] > 0) & (ref.range > 0)
+    assert both.mean() > 0.9 * (ref.range > 0).mean()
+    close = np.abs(cur2[0][both] - ref.range[both]) < 0.05
+    assert close.mean() > 0.97
+    np.testing.assert_allclose(cur2[1][both][close], ref.xyz[..., 0][both][close], atol=0.15)
+    np.testing.assert_allclose(cur2[2][both][close], ref.xyz[..., 1][both][close], atol=0.15)
+    # flip y -> -y is a column reversal with y negated
+    flipped = project(pts * np.array([1, -1, 1], np.float32), rem, TEST_SENSOR)
+    cur3, _, _ = flip_y(current.copy(), extra.copy(), label.copy(), frames_kind=False)
+    both = (cur3[0] > 0) & (flipped.range > 0)
+    close = np.abs(cur3[0][both] - flipped.range[both]) < 0.05
+    assert close.mean() > 0.95
+    np.testing.assert_allclose(cur3[2][both][close], flipped.xyz[..., 1][both][close], atol=0.15)
+
+
+def test_dataset_assembles_inputs_with_the_core(data_root, tmp_path):
+    spec = CacheSpec(sensor=TEST_SENSOR, n_residual=3, n_frames=1)
+    cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=1)
+    for setup in (InputSetup("residual", 0), InputSetup("residual", 3), InputSetup("frames", 1)):
+        ds = MosDataset([cache], setup, [1.0] * 5, [2.0] * 5, AugmentConfig(crop_width=128, drop_max=0.2))
+        x, y = ds[2]
+        assert x.shape == (setup.channels, TEST_SENSOR.height, 128) and y.shape == (TEST_SENSOR.height, 128)
+        assert x.dtype == torch.float32 and y.dtype == torch.int64
+    ds = MosDataset([cache], InputSetup("residual", 2), [1.0] * 5, [2.0] * 5)
+    x, _ = ds[2]
+    current, extra, _ = ds.components(2)
+    image = as_range_image(current)
+    expected = (current - 1.0) / 2.0 * image.mask[None]
+    np.testing.assert_allclose(x[:5].numpy(), expected, atol=1e-6)
+    np.testing.assert_allclose(x[5:].numpy(), extra)
+
+
+def test_class_weights_inverse_frequency_with_ignore():
+    w = inverse_frequency_weights([997, 3], eps=1e-3)
+    assert w[0] == pytest.approx(1 / (0.997 + 1e-3))
+    assert w[1] == pytest.approx(250.0)
+    w = inverse_frequency_weights([10, 990, 0], eps=1e-3, ignore=[0])
+    assert w[0] == 0.0 and w[2] == pytest.approx(1000.0)
+
+
+def test_lovasz_softmax_hand_cases():
+    labels = torch.tensor([[[0, 1, 1, -1]]])
+    perfect = torch.tensor([[[[1.0, 0.0, 0.0, 0.3]], [[0.0, 1.0, 1.0, 0.7]]]])
+    assert float(lovasz_softmax(perfect, labels)) == pytest.approx(0.0, abs=1e-7)
+    wrong = 1.0 - perfect
+    assert float(lovasz_softmax(wrong, labels)) == pytest.approx(1.0)
+    # Binary hard predictions: the Lovász extension equals 1 - IoU per class.
+    # pred moving at pixels 1, 2 (gt moving at 1, 3): moving IoU 1/3, static IoU 0/2 (gt static at 0, 2).
+    labels = torch.tensor([[[0, 1, 0, 1]]])
+    hard = torch.tensor([[[[1.0, 0.0, 0.0, 1.0]], [[0.0, 1.0, 1.0, 0.0]]]])
+    expected = ((1 - 1 / 3) + (1 - 1 / 3)) / 2
+    assert float(lovasz_softmax(hard, labels)) == pytest.approx(expected)
+
+
+def test_one_step_lowers_the_loss():
+    from ros2_mos.training.nets import build_network
+
+    torch.manual_seed(0)
+    net = build_network("fastmos", 7)
+    x = torch.randn(2, 7, 16, 64)
+    y = (x[:, 5] > 0.5).long()
+    y[:, 0] = -1
+    loss_fn = MosLoss([1.0, 3.0])
+    opt = torch.optim.SGD(net.parameters(), lr=0.05, momentum=0.0)
+    net.train()
+    before = loss_fn(net(x), y)[0].item()
+    for _ in range(3):
+        loss = loss_fn(net(x), y)[0]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    net.train()
+    after = loss_fn(net(x), y)[0].item()
+    assert after < before
+
+
+def test_train_checkpoint_resume_and_export(data_root, tmp_path):
+    cfg = _config(data_root, tmp_path, epochs=1)
+    trainer = Trainer(cfg, data_root, show_progress=False)
+    history = trainer.fit()
+    assert len(history) == 1 and math.isfinite(history[0].train_loss)
+    run = tmp_path / "run"
+    assert (run / "last.pt").is_file() and (run / "best.pt").is_file()
+    lines = (run / "metrics.csv").read_text().splitlines()
+    assert lines[0].startswith("epoch,train_loss") and len(lines) == 2
+    state = load_checkpoint(run / "last.pt")
+    assert state["epoch"] == 0 and state["class_weights"][1] > state["class_weights"][0]
+    # Resume: a second trainer with more epochs starts at epoch 1 with the saved weights.
+    cfg2 = _config(data_root, tmp_path, epochs=2)
+    resumed = Trainer(cfg2, data_root, show_progress=False)
+    assert resumed.start_epoch == 1
+    for k, v in resumed.model.state_dict().items():
+        assert torch.equal(v, state["model"][k])
+    resumed.fit()
+    assert len((run / "metrics.csv").read_text().splitlines()) == 3
+    report = export_checkpoint(run / "last.pt", tmp_path / "m.onnx")
+    assert report.max_abs_diff < 1e-4
+    from ros2_mos.training.export import read_metadata
+
+    meta = read_metadata(tmp_path / "m.onnx")
+    assert meta.network == "fastmos" and meta.input == InputSetup("residual", 2) and meta.sensor == TEST_SENSOR
+    assert meta.means == tuple(state["means"]) or len(meta.means) == 5
