@@ -17,6 +17,9 @@ import numpy as np
 from ros2_mos.config import PostprocessConfig
 from ros2_mos.projection import PixelIndex
 
+# Range given to empty pixels: far beyond any cut-off, so they never vote.
+_EMPTY_RANGE = 1e9
+
 
 def _inverse_gaussian(window: int, sigma: float) -> np.ndarray:
     """1 − normalised Gaussian over the window offsets (RangeNet++'s ``inv_gauss_k``)."""
@@ -38,35 +41,37 @@ def knn_backproject(
     """Per-point moving probability by kNN over the range image (see module docstring)."""
     h, w = range_image.shape
     half = config.window // 2
-    n = len(pixels.u)
-    if n == 0:
+    if len(pixels.u) == 0:
         return np.empty(0, np.float32)
-    dv, du = np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1), indexing="ij")
-    dv, du = dv.ravel(), du.ravel()
-    rows = pixels.v[:, None] + dv[None, :]
-    cols = (pixels.u[:, None] + du[None, :]) % w  # the image wraps around in azimuth
-    outside = (rows < 0) | (rows >= h)
-    flat = np.clip(rows, 0, h - 1) * w + cols
-    neighbour_range = range_image.reshape(-1)[flat]
-    empty = outside | (neighbour_range <= 0)
-    dist = np.abs(neighbour_range - pixels.range[:, None])
-    dist[empty] = np.inf
+    # Pad rows with "no return" and wrap columns (the image is 360 deg in azimuth), so every
+    # window is a fixed set of flat offsets: no bounds checks, no masks per neighbour.
+    empty = np.float32(_EMPTY_RANGE)
+    rng = np.where(range_image > 0, range_image, empty).astype(np.float32)
+    rng = np.pad(rng, ((half, half), (0, 0)), constant_values=empty)
+    rng = np.concatenate([rng[:, w - half :], rng, rng[:, :half]], axis=1) if half else rng
+    prob = np.pad(prob_image.astype(np.float32), ((half, half), (0, 0)))
+    prob = np.concatenate([prob[:, w - half :], prob, prob[:, :half]], axis=1) if half else prob
+    pw = w + 2 * half
+    offsets = np.arange(-half, half + 1, dtype=np.int64)
+    window_offsets = (np.repeat(offsets, config.window) * pw + np.tile(offsets, config.window))[None, :]
+    flat = ((pixels.v.astype(np.int64) + half) * pw + pixels.u + half)[:, None] + window_offsets
+    dist = np.take(rng.reshape(-1), flat)
+    dist -= pixels.range[:, None]
+    np.abs(dist, out=dist)
     dist *= _inverse_gaussian(config.window, config.sigma)[None, :]
     # The point's own pixel, at the point's own range, is always among the k (ties with
     # neighbours at distance 0 would otherwise make the choice arbitrary).
     dist[:, (config.window * config.window) // 2] = -1.0
-    k = config.k
-    if k < dist.shape[1]:
-        nearest = np.argpartition(dist, k - 1, axis=1)[:, :k]
+    if config.k < dist.shape[1]:
+        # The k-th smallest distance bounds the k nearest; a partition is ~3x cheaper than an argpartition.
+        kth = np.partition(dist, config.k - 1, axis=1)[:, config.k - 1 : config.k]
+        keep = (dist <= kth) & (dist <= config.cutoff)
     else:
-        nearest = np.broadcast_to(np.arange(dist.shape[1]), (n, dist.shape[1]))
-    near_dist = np.take_along_axis(dist, nearest, axis=1)
-    keep = near_dist <= config.cutoff
-    probs = prob_image.reshape(-1)[np.take_along_axis(flat, nearest, axis=1)]
-    total = (probs * keep).sum(axis=1)
-    count = keep.sum(axis=1)
-    own = prob_image[pixels.v, pixels.u]
-    return np.where(count > 0, total / np.maximum(count, 1), own).astype(np.float32)
+        keep = dist <= config.cutoff
+    probs = np.take(prob.reshape(-1), flat)
+    total = np.einsum("ij,ij->i", probs, keep.astype(np.float32))
+    # The own pixel is always kept, so every point has at least one vote.
+    return (total / keep.sum(axis=1)).astype(np.float32)
 
 
 def backproject(

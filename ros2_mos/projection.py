@@ -19,11 +19,6 @@ import numpy as np
 from ros2_mos.config import SensorConfig
 from ros2_mos.errors import ScanError
 
-# Ranges are quantised to 0.1 mm for the "closest wins" sort key; 2**24 covers 1.6 km.
-_RANGE_QUANTUM = 1e-4
-_RANGE_BITS = 24
-
-
 @dataclass
 class PixelIndex:
     """Where each point lands: its pixel (clamped into the image) and whether it lies inside."""
@@ -66,7 +61,7 @@ def pixel_index(points: np.ndarray, sensor: SensorConfig) -> PixelIndex:
     x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
     r = np.sqrt(x * x + y * y + z * z)
     with np.errstate(invalid="ignore", divide="ignore"):
-        pitch = np.arcsin(np.clip(z / r, -1.0, 1.0))
+        pitch = np.arcsin(np.clip(z / r, -1.0, 1.0, dtype=r.dtype))
     yaw = np.arctan2(y, x)
     u_f = 0.5 * (1.0 - yaw / np.pi) * sensor.width
     v_f = (1.0 - (pitch - sensor.fov_down) / sensor.fov) * sensor.height
@@ -76,22 +71,25 @@ def pixel_index(points: np.ndarray, sensor: SensorConfig) -> PixelIndex:
     return PixelIndex(u=u, v=v, range=r.astype(np.float32), in_image=in_image)
 
 
-def closest_per_pixel(pixels: PixelIndex, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """For every occupied pixel, the linear pixel id and the index of its closest point.
+def closest_per_pixel(pixels: PixelIndex, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The closest range per pixel, and for every occupied pixel its id and the index of its closest point.
 
-    One integer sort of (pixel, quantised range) keys makes "closest wins" exact and
-    independent of numpy's unspecified order for repeated fancy-index assignment.
+    ``np.minimum.at`` gives the per-pixel minimum in one unbuffered pass (no sort, and
+    no reliance on numpy's unspecified order for repeated fancy-index assignment);
+    the point whose range equals its pixel's minimum is the winner.
     """
     candidates = np.flatnonzero(pixels.in_image)
-    if len(candidates) == 0:
-        return np.empty(0, np.int64), np.empty(0, np.int64)
-    pix = pixels.v[candidates].astype(np.int64) * width + pixels.u[candidates]
-    rq = np.minimum(pixels.range[candidates] / _RANGE_QUANTUM, (1 << _RANGE_BITS) - 1).astype(np.int64)
-    order = np.argsort((pix << _RANGE_BITS) | rq)
-    pix_sorted = pix[order]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = pix_sorted[1:] != pix_sorted[:-1]
-    return pix_sorted[first], candidates[order[first]]
+    pix = pixels.v[candidates] * width + pixels.u[candidates]
+    r = pixels.range[candidates]
+    best = np.full(height * width, np.inf, dtype=np.float32)
+    np.minimum.at(best, pix, r)
+    winner = r == best[pix]
+    # Exact ties (two points at the same range on one pixel) keep the last one written.
+    point_of_pixel = np.full(height * width, -1, dtype=np.int32)
+    point_of_pixel[pix[winner]] = candidates[winner]
+    occupied = np.flatnonzero(point_of_pixel >= 0)
+    best[~np.isfinite(best)] = 0.0
+    return best, occupied, point_of_pixel[occupied]
 
 
 def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> RangeImage:
@@ -102,11 +100,9 @@ def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> 
         raise ScanError(f"remission has {len(rem)} values for {len(pts)} points")
     pixels = pixel_index(pts, sensor)
     h, w = sensor.height, sensor.width
-    pix, idx = closest_per_pixel(pixels, w)
+    rng, pix, idx = closest_per_pixel(pixels, w, h)
     point_index = np.full(h * w, -1, dtype=np.int32)
     point_index[pix] = idx
-    rng = np.zeros(h * w, dtype=np.float32)
-    rng[pix] = pixels.range[idx]
     xyz = np.zeros((h * w, 3), dtype=np.float32)
     xyz[pix] = pts[idx]
     rem_img = np.zeros(h * w, dtype=np.float32)
@@ -123,9 +119,7 @@ def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> 
 def project_range(points: np.ndarray, sensor: SensorConfig) -> np.ndarray:
     """Only the (H, W) range image (0 where empty): what a past scan needs for its residual."""
     pixels = pixel_index(points, sensor)
-    pix, idx = closest_per_pixel(pixels, sensor.width)
-    rng = np.zeros(sensor.height * sensor.width, dtype=np.float32)
-    rng[pix] = pixels.range[idx]
+    rng, _, _ = closest_per_pixel(pixels, sensor.width, sensor.height)
     return rng.reshape(sensor.height, sensor.width)
 
 

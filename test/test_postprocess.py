@@ -16,11 +16,13 @@ def pixels(rows, cols, ranges):
 
 def test_occluded_point_takes_the_label_of_neighbours_at_its_own_range():
     # A moving pedestrian (prob 1) at 5 m covers pixel (2, 2); behind it a wall at 20 m (prob 0).
-    rng = np.full((5, 8), 20.0, np.float32)
+    rows, cols = np.mgrid[0:5, 0:8]
+    rng = (20.0 + 0.011 * cols + 0.029 * rows).astype(np.float32)  # distinct ranges: no ties in the top k
     prob = np.zeros((5, 8), np.float32)
+    wall_range = float(rng[2, 2])
     rng[2, 2], prob[2, 2] = 5.0, 1.0
     # Point A is the pedestrian itself; point B is a wall point that lost pixel (2, 2) to it.
-    pix = pixels([2, 2], [2, 2], [5.0, 20.0])
+    pix = pixels([2, 2], [2, 2], [5.0, wall_range])
     cfg = PostprocessConfig(k=5, window=5, sigma=1.0, cutoff=1.0)
     np.testing.assert_allclose(nearest_backproject(prob, pix), [1.0, 1.0])
     # A: only its own pixel lies within 1 m -> 1.  B: its own pixel (distance 0) votes 1,
