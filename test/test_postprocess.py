@@ -58,3 +58,19 @@ def test_mode_nearest_uses_own_pixel():
 def test_invalid_settings_are_rejected(kwargs):
     with pytest.raises(ConfigError):
         PostprocessConfig(**kwargs)
+
+
+def test_thresholded_knn_gives_the_same_labels_as_the_full_vote():
+    rng = np.random.default_rng(3)
+    h, w, n = 16, 64, 4000
+    range_image = rng.uniform(5, 30, (h, w)).astype(np.float32)
+    range_image[rng.random((h, w)) < 0.1] = 0.0
+    prob = np.zeros((h, w), np.float32)
+    prob[4:9, 10:20] = rng.uniform(0.3, 1.0, (5, 10))
+    pix = PixelIndex(rng.integers(0, w, n).astype(np.int32), rng.integers(0, h, n).astype(np.int32),
+                     rng.uniform(5, 30, n).astype(np.float32), np.ones(n, bool))
+    cfg = PostprocessConfig(cutoff=3.0)
+    full = knn_backproject(prob, range_image, pix, cfg)
+    fast = knn_backproject(prob, range_image, pix, cfg, threshold=0.5)
+    np.testing.assert_array_equal(full >= 0.5, fast >= 0.5)
+    assert 0 < (full >= 0.5).sum() < n
