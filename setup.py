@@ -29,6 +29,7 @@ setup(
     entry_points={
         "console_scripts": [
             "ros2-mos = ros2_mos.cli.app:main",
+            "mos_node = ros2_mos.ros.node:main",
         ],
     },
 )

@@ -247,7 +247,7 @@ def _field(view: CloudView, name: str) -> Field | None:
 def decode_xyz_intensity(
     msg: Any, intensity_names: Sequence[str] = INTENSITY_NAMES
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.intp]]:
-    """Decode the finite points of a PointCloud2.
+    """Decode the finite points of a PointCloud2 (or of a :class:`CloudView` already made of one).
 
     Returns ``points`` (M, 3) float32 C-contiguous, ``intensity`` (M,) float32
     (zeros where the cloud has none of ``intensity_names``; non-finite
@@ -258,7 +258,7 @@ def decode_xyz_intensity(
     Points with any non-finite coordinate are skipped. x, y, z must be float32
     or float64 with count 1; the intensity may be any numeric datatype.
     """
-    view = view_cloud(msg)
+    view = msg if isinstance(msg, CloudView) else view_cloud(msg)
     for axis in ("x", "y", "z"):
         f = _field(view, axis)
         if f is None:

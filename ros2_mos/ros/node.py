@@ -1,0 +1,262 @@
+"""``mos_node``: moving object segmentation between a LiDAR driver and a SLAM stack.
+
+The subscription callback only hands the newest cloud to a worker thread
+(:class:`~ros2_mos.ros.latest_queue.LatestQueue`, size 1, oldest dropped and
+counted), so the executor stays free for timers and other callbacks while a scan
+is labelled. The worker runs :class:`~ros2_mos.ros.processor.ScanProcessor` (the
+same code as the offline ``process`` command) and publishes the results. Bad
+clouds are logged, counted and skipped; unexpected failures reset the pipeline
+and the node keeps running. This module is the only one that imports rclpy; it
+never imports torch.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from ros2_mos.errors import ConfigError, ModelError, MosError, ScanError
+from ros2_mos.ros import messages as m
+from ros2_mos.ros.latest_queue import LatestQueue
+from ros2_mos.ros.params import NODE_NAME, OUTPUT_KEYS, PARAMS, ParamSpec, mos_config, node_settings
+from ros2_mos.ros.processor import ScanOutput, ScanProcessor, SkippedScan
+from ros2_mos.ros.stats import NodeStats, summary_line
+
+DIAGNOSTIC_NAME = "mos_node: moving object segmentation"
+#: Consecutive unexpected failures after which diagnostics report ERROR.
+ERROR_STREAK = 3
+#: Seconds without input after which diagnostics report the input as stale.
+STALE_AFTER_S = 2.0
+
+
+def _descriptor(spec: ParamSpec) -> Any:
+    """A read-only ParameterDescriptor with the spec's documentation, choices and bounds."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    constraints = []
+    if spec.choices:
+        constraints.append("one of: " + ", ".join(spec.choices))
+    if spec.min is not None:
+        constraints.append(f">= {spec.min}")
+    if spec.max is not None:
+        constraints.append(f"<= {spec.max}")
+    desc = ParameterDescriptor(name=spec.name, description=spec.description,
+                               additional_constraints="; ".join(constraints), read_only=True)
+    if spec.min is not None and spec.max is not None:
+        if spec.type is float:
+            desc.floating_point_range = [FloatingPointRange(from_value=float(spec.min), to_value=float(spec.max))]
+        elif spec.type is int:
+            desc.integer_range = [IntegerRange(from_value=int(spec.min), to_value=int(spec.max), step=1)]
+    return desc
+
+
+def sensor_qos(reliable: bool, depth: int) -> QoSProfile:
+    """Input QoS: best effort + keep last ``depth`` (sensor data) or reliable."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth, durability=DurabilityPolicy.VOLATILE,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+    )
+
+
+class MosNode(Node):
+    """The MOS node; construct after ``rclpy.init``. Raises ConfigError/ModelError on bad settings."""
+
+    def __init__(self, **node_kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **node_kwargs)
+        self._worker: threading.Thread | None = None
+        self._queue: LatestQueue[tuple[Any, float]] = LatestQueue(1)
+        self.stats = NodeStats()
+        self._stopped = False
+        try:
+            self._setup()
+        except BaseException:
+            self.destroy_node()
+            raise
+
+    # ------------------------------------------------------------------ set-up
+    def _declare(self) -> dict[str, Any]:
+        from rclpy.exceptions import ParameterException
+
+        values: dict[str, Any] = {}
+        for spec in PARAMS:
+            try:
+                param = self.declare_parameter(spec.name, spec.default, _descriptor(spec))
+            except ParameterException as exc:
+                raise ConfigError(f"parameter {spec.name!r}: {exc}") from None
+            values[spec.name] = param.value
+        overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps no public list of them
+        unknown = sorted(n for n in overrides if n not in self._parameters and not n.startswith("qos_overrides."))
+        if unknown:
+            raise ConfigError(f"unknown parameters {unknown} (typo?); see config/mos.yaml for the known ones")
+        return values
+
+    def _setup(self) -> None:
+        from ros2_mos.pipeline import MosPipeline
+
+        t0 = time.perf_counter()
+        values = self._declare()
+        self.settings = node_settings(values)
+        pipeline = MosPipeline(mos_config(values))
+        self.types = m.MessageTypes.rclpy()
+        self.processor = ScanProcessor(pipeline, self.settings, self.types)
+        s = self.settings
+        out_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=s.publish_depth,
+                             reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        kinds = {"static_points": self.types.point_cloud2, "moving_points": self.types.point_cloud2,
+                 "labels": self.types.point_cloud2, "range_image": self.types.image, "mask": self.types.image,
+                 "odometry": self.types.odometry}
+        self._pubs = {key: self.create_publisher(kinds[key], s.topics[key], out_qos) for key in OUTPUT_KEYS}
+        if s.publish_tf and self.types.tf_message is not None:
+            tf_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
+            self._pubs["tf"] = self.create_publisher(self.types.tf_message, "/tf", tf_qos)
+        elif s.publish_tf:
+            self.get_logger().warning("tf2_msgs is not installed (e.g. PyPI wheels): the odom -> sensor transform is "
+                                      f"not published on /tf; {s.topics['odometry']} carries the same pose")
+        self._diag_pub = self.create_publisher(self.types.diagnostic_array, "/diagnostics", 10)
+        self._sub = self.create_subscription(self.types.point_cloud2, s.input_topic, self._on_cloud,
+                                             sensor_qos(s.reliable, s.depth))
+        self._diag_timer = self.create_timer(s.diagnostics_period, self._publish_diagnostics)
+        self._log_timer = self.create_timer(s.log_period, self._log_stats) if s.log_period > 0 else None
+        self._last_output: ScanOutput | None = None
+        self._worker = threading.Thread(target=self._work, name="mos_worker", daemon=True)
+        self._worker.start()
+        p = pipeline
+        self.get_logger().info(
+            f"ready in {time.perf_counter() - t0:.2f} s: model {p.model.path.name} ({p.model.metadata.network}, "
+            f"{p.setup.label}, {p.model.provider}), sensor {p.sensor.name} {p.sensor.height}x{p.sensor.width}; "
+            f"{s.input_topic} ({'reliable' if s.reliable else 'best effort'}) -> {', '.join(s.topics.values())}")
+
+    # ------------------------------------------------------------------ executor side
+    def _on_cloud(self, msg: Any) -> None:
+        """Hand the cloud to the worker; never blocks (the oldest waiting cloud is dropped)."""
+        self.stats.on_received()
+        if self._queue.put((msg, time.monotonic())):
+            self.stats.on_dropped()
+
+    # ------------------------------------------------------------------ worker side
+    def _work(self) -> None:
+        while not self._queue.closed:
+            item = self._queue.get(timeout=0.5)
+            if item is None:
+                continue
+            msg, received = item
+            try:
+                self._handle(msg, received)
+            except Exception as exc:  # a bug or a failing library: log, reset, keep running
+                if self._stopped or not self.context.ok():
+                    return
+                self.stats.on_error(f"{type(exc).__name__}: {exc}")
+                self.get_logger().error(f"processing failed, pipeline reset: {type(exc).__name__}: {exc}")
+                try:
+                    self.processor.reset()
+                except Exception as reset_exc:  # pragma: no cover - nothing sensible left to do
+                    self.get_logger().error(f"reset failed too: {reset_exc}")
+
+    def _handle(self, msg: Any, received: float) -> None:
+        log = self.get_logger()
+        try:
+            out = self.processor.process(msg)
+        except SkippedScan as exc:
+            self.stats.on_skipped(exc.reason, str(exc))
+            log.warning(str(exc), throttle_duration_sec=1.0)
+            return
+        except ScanError as exc:
+            self.stats.on_skipped("bad_cloud", str(exc))
+            log.warning(f"bad PointCloud2 skipped: {exc}", throttle_duration_sec=1.0)
+            return
+        for note in out.notes:
+            log.warning(note)
+        if out.reset:
+            self.stats.on_reset("; ".join(out.notes) or "scan buffer reset")
+        if self._stopped:
+            return
+        for key, message in out.messages.items():
+            pub = self._pubs.get(key)
+            if pub is not None:
+                pub.publish(message)
+        self._last_output = out
+        self.stats.on_processed(out.timings, (time.monotonic() - received) * 1e3, out.result.degraded)
+
+    # ------------------------------------------------------------------ reporting
+    def _publish_diagnostics(self) -> None:
+        s = self.stats.snapshot()
+        level, message = m.OK, "ok"
+        last = self._last_output
+        stale = s.seconds_since_last_scan is None or s.seconds_since_last_scan > STALE_AFTER_S
+        if s.consecutive_errors >= ERROR_STREAK:
+            level, message = m.ERROR, f"{s.consecutive_errors} scans failed in a row: {s.last_warning}"
+        elif stale:
+            level, message = m.WARN, "no input" + ("" if s.seconds_since_last_scan is None else
+                                                   f" for {s.seconds_since_last_scan:.1f} s")
+        elif last is not None and last.result.degraded:
+            level, message = m.WARN, "labels degraded: " + ("; ".join(last.result.warnings) or
+                                                            f"{last.result.n_past_available} of "
+                                                            f"{last.result.n_past_required} past scans available")
+        values: dict[str, Any] = {
+            "rate_hz": s.rate_hz, "received": s.received, "processed": s.processed, "dropped": s.dropped,
+            "skipped": s.skipped_total, **{f"skipped.{k}": v for k, v in s.skipped.items()},
+            "errors": s.errors, "resets": s.resets, "degraded_scans": s.degraded,
+            "latency_ms_mean": s.latency_ms[0], "latency_ms_max": s.latency_ms[1],
+            **{f"{stage}_ms_mean": v[0] for stage, v in s.stage_ms.items()},
+            **{f"{stage}_ms_max": v[1] for stage, v in s.stage_ms.items()},
+            "last_warning": s.last_warning,
+        }
+        if last is not None:
+            values.update(points=len(last.valid_index), moving_points=last.n_moving,
+                          residuals_complete=last.result.residuals_complete, degraded=last.result.degraded)
+        header = m.make_header(self.types, self.get_clock().now().nanoseconds, "")
+        self._diag_pub.publish(m.diagnostics_msg(self.types, header, DIAGNOSTIC_NAME, self.get_name(), level,
+                                                 message, values))
+
+    def _log_stats(self) -> None:
+        self.get_logger().info(summary_line(self.stats.snapshot()))
+
+    # ------------------------------------------------------------------ shutdown
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop the worker (finishing the scan in hand) and log the final statistics; idempotent."""
+        if self._stopped:
+            return
+        self._stopped = True
+        self._queue.close()
+        if self._worker is not None and self._worker is not threading.current_thread():
+            self._worker.join(timeout)
+        if self._worker is not None:
+            self.get_logger().info("final statistics: " + summary_line(self.stats.snapshot()))
+
+    def destroy_node(self) -> None:
+        self.stop()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console entry ``mos_node`` (also ``ros2 run ros2_mos mos_node`` on a ROS install)."""
+    rclpy.init(args=args)
+    node: MosNode | None = None
+    code = 0
+    try:
+        node = MosNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ConfigError, ModelError) as exc:
+        rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
+        code = 1
+    except MosError as exc:
+        rclpy.logging.get_logger(NODE_NAME).fatal(f"stopped: {exc}")
+        code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,138 @@
+"""One PointCloud2 in, the node's output messages out: shared by ``mos_node`` and ``process``.
+
+Everything between decoding the input and having the messages to publish lives
+here, so the live node and the offline bag processing cannot disagree. It also
+owns the input policy: which clouds are skipped (bad layout, too few finite
+points, a duplicate stamp) and when the scan buffer is reset (a gap in the
+stream; time going backwards and pose jumps are handled by the pipeline).
+Skips raise :class:`~ros2_mos.errors.ScanError` with the reason; the caller
+logs it and carries on.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ros2_mos.errors import ScanError
+from ros2_mos.pipeline import MosPipeline, MosResult
+from ros2_mos.pointcloud2 import decode_xyz_intensity, view_cloud
+from ros2_mos.ros import messages as m
+from ros2_mos.ros.params import NodeSettings
+
+
+class SkippedScan(ScanError):
+    """A cloud was well-formed but not usable (too few points, duplicate stamp); ``reason`` is a short key."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+@dataclass
+class ScanOutput:
+    """The messages one scan produced, keyed like :data:`ros2_mos.ros.params.OUTPUT_KEYS` plus ``tf``."""
+
+    stamp_ns: int
+    frame_id: str
+    result: MosResult
+    valid_index: np.ndarray  # indices (into the input cloud) of the points that got a label
+    messages: dict[str, Any]
+    timings: dict[str, float]
+    notes: list[str] = field(default_factory=list)  # warnings to log (resets, degraded, ...)
+    reset: bool = False
+    labels_withheld: bool = False
+
+    @property
+    def n_moving(self) -> int:
+        return int(self.result.labels[self.result.valid].sum())
+
+
+class ScanProcessor:
+    """Decode, label, and build the output messages of a stream of PointCloud2 from one sensor."""
+
+    def __init__(self, pipeline: MosPipeline, settings: NodeSettings, types: m.MessageTypes) -> None:
+        self.pipeline = pipeline
+        self.settings = settings
+        self.types = types
+        self._last_stamp: int | None = None
+
+    def reset(self) -> None:
+        """Forget the past (also the pipeline's scan buffer and odometry)."""
+        self.pipeline.reset()
+        self._last_stamp = None
+
+    def process(self, msg: Any, wanted: frozenset[str] | None = None) -> ScanOutput:
+        """Label one cloud; ``wanted`` limits which messages are built (None = all).
+
+        Raises ScanError (a :class:`SkippedScan` or a layout error) for clouds that are skipped.
+        """
+        t0 = time.perf_counter()
+        stamp = m.stamp_ns(msg.header.stamp)
+        frame_id = str(msg.header.frame_id)
+        view = view_cloud(msg)
+        points, intensity, valid_index = decode_xyz_intensity(view)
+        t_decode = (time.perf_counter() - t0) * 1e3
+        if len(points) < self.settings.min_points:
+            raise SkippedScan("too_few_points", f"cloud at {stamp * 1e-9:.3f} s has {len(points)} finite points "
+                              f"of {view.size} (min_points {self.settings.min_points}): skipped")
+        notes: list[str] = []
+        reset = False
+        if self._last_stamp is not None:
+            if stamp == self._last_stamp:
+                raise SkippedScan("duplicate_stamp", f"cloud at {stamp * 1e-9:.3f} s repeats the last stamp: skipped")
+            gap = (stamp - self._last_stamp) * 1e-9
+            if self.settings.reset_after_gap > 0 and gap > self.settings.reset_after_gap:
+                self.pipeline.reset()
+                notes.append(f"{gap:.2f} s since the last scan (> reset_after_gap): scan buffer reset")
+                reset = True
+            elif gap < 0:
+                reset = True  # the pipeline resets itself and says so in its warnings
+        result = self.pipeline.process(points, intensity, stamp * 1e-9)
+        self._last_stamp = stamp
+        notes.extend(result.warnings)
+        reset = reset or any("reset" in w for w in result.warnings)
+
+        t1 = time.perf_counter()
+        kept = valid_index[result.valid]
+        moving = result.labels[result.valid].astype(bool)
+        withhold = not result.residuals_complete and not self.settings.publish_incomplete
+        messages = self._build(wanted, stamp, frame_id, view, kept, moving, result, withhold)
+        timings = {"decode": t_decode, **{k: v for k, v in result.timings.items() if k != "total"},
+                   "encode": (time.perf_counter() - t1) * 1e3}
+        timings["total"] = (time.perf_counter() - t0) * 1e3
+        return ScanOutput(stamp, frame_id, result, kept, messages, timings, notes, reset, withhold)
+
+    def _build(self, wanted: frozenset[str] | None, stamp: int, frame_id: str, view: Any, kept: np.ndarray,
+               moving: np.ndarray, result: MosResult, withhold: bool) -> dict[str, Any]:
+        types = self.types
+
+        def want(key: str) -> bool:
+            return wanted is None or key in wanted
+
+        header = m.make_header(types, stamp, frame_id)
+        out: dict[str, Any] = {}
+        if not withhold:
+            if want("static_points"):
+                out["static_points"] = m.subset_cloud(types, header, view, kept[~moving])
+            if want("moving_points"):
+                out["moving_points"] = m.subset_cloud(types, header, view, kept[moving])
+            if want("labels"):
+                out["labels"] = m.labels_cloud(types, header, view, kept, moving.astype(np.uint8),
+                                               result.probability[result.valid])
+            if want("mask"):
+                out["mask"] = m.image_msg(types, header, (result.mask_image > 0).astype(np.uint8) * 255)
+        if want("range_image"):
+            out["range_image"] = m.image_msg(types, header, result.range_image.astype(np.float32, copy=False))
+        child = self.settings.sensor_frame or frame_id
+        odom_header = m.make_header(types, stamp, self.settings.odom_frame)
+        if want("odometry"):
+            out["odometry"] = m.odometry_msg(types, odom_header, child, result.pose)
+        if want("tf") and self.settings.publish_tf:
+            tf = m.tf_msg(types, odom_header, child, result.pose)
+            if tf is not None:
+                out["tf"] = tf
+        return out
