@@ -9,6 +9,7 @@ The node, the CLI (``infer``, ``process``, ``bench``) and the evaluation all cal
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -86,12 +87,20 @@ class MosPipeline:
         self.stds = np.asarray(meta.stds, np.float32)
         self.odometry = KissIcpOdometry(config.odometry)
         self.buffer = ScanBuffer(self.setup.n_past)
+        # Past scans are re-projected in parallel (numpy releases the GIL in its ufuncs).
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mos-residuals") if self.n_past > 1 else None
         self._last_stamp: float | None = None
         self._last_pose: np.ndarray | None = None
 
     @property
     def n_past(self) -> int:
         return self.setup.n_past
+
+    def close(self) -> None:
+        """Stop the worker threads (the pipeline is unusable afterwards)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
     def reset(self) -> None:
         """Forget past scans and the odometry map (time went backwards, odometry failed, ...)."""
@@ -145,7 +154,8 @@ class MosPipeline:
         past = self.buffer.newest_first()
         if self.setup.kind == "residual":
             residuals = residual_images(
-                image.range, pose, [(s.points, s.pose) for s in past], self.n_past, self.sensor, self.config.residuals
+                image.range, pose, [(s.points, s.pose) for s in past], self.n_past, self.sensor, self.config.residuals,
+                map_fn=self._pool.map if self._pool is not None else map,
             )
             extra: np.ndarray | list[RangeImage] = residuals
         else:

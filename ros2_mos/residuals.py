@@ -11,6 +11,8 @@ LiDAR-MOS reference code.
 
 from __future__ import annotations
 
+from typing import Callable, Iterable, Iterator
+
 import numpy as np
 
 from ros2_mos.config import ResidualConfig, SensorConfig
@@ -54,14 +56,23 @@ def residual_images(
     n: int,
     sensor: SensorConfig,
     config: ResidualConfig,
+    map_fn: Callable[..., Iterable] = map,
 ) -> np.ndarray:
     """(n, H, W) residuals against the past scans, newest first; missing ones stay 0.
+
+    ``map_fn`` may be a thread pool's ``map``: numpy releases the GIL in the heavy
+    ufuncs, so the re-projections of several past scans overlap on several cores.
 
     ``past_scans`` holds (points in their own sensor frame, world pose), newest first.
     Fewer than ``n`` entries happen at a sequence start or after a buffer reset: the
     missing channels are zero, which is what the network saw in training for that case.
     """
     out = np.zeros((n, sensor.height, sensor.width), dtype=np.float32)
-    for j, (points, pose) in enumerate(past_scans[:n]):
-        out[j] = residual_image(current_range, past_range_image(points, pose, current_pose, sensor), config)
+
+    def one(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        return residual_image(current_range, past_range_image(scan[0], scan[1], current_pose, sensor), config)
+
+    results: Iterator[np.ndarray] = iter(map_fn(one, past_scans[:n]))
+    for j, image in enumerate(results):
+        out[j] = image
     return out
