@@ -191,3 +191,29 @@ def test_train_checkpoint_resume_and_export(data_root, tmp_path):
     meta = read_metadata(tmp_path / "m.onnx")
     assert meta.network == "fastmos" and meta.input == InputSetup("residual", 2) and meta.sensor == TEST_SENSOR
     assert meta.means == tuple(state["means"]) or len(meta.means) == 5
+
+
+def test_connected_regions_hand_case():
+    from ros2_mos.training.baselines import connected_regions
+
+    valid = np.array([[1, 1, 0, 1], [0, 1, 0, 1], [0, 0, 0, 1]], bool)
+    rng = np.array([[5.0, 5.1, 0, 9.0], [0, 5.2, 0, 9.1], [0, 0, 0, 20.0]], np.float32)
+    lab = connected_regions(valid, rng, rel=0.05)
+    assert lab[0, 0] == lab[0, 1] == lab[1, 1]
+    assert lab[0, 3] == lab[1, 3] != lab[2, 3]  # 9.1 -> 20 m is a depth jump
+    assert lab[0, 0] != lab[0, 3] or True
+    # wrap-around in azimuth: column 3 touches column 0 (5.0 vs 9.0 m: a jump, so separate)
+    assert lab[0, 3] != lab[0, 0]
+    assert (lab[~valid] == -1).all()
+
+
+def test_baselines_find_the_moving_box(data_root, tmp_path):
+    from ros2_mos.training.ablation import evaluate_point_iou
+    from ros2_mos.training.baselines import ResidualRegionGrowing, ResidualThreshold
+
+    spec = CacheSpec(sensor=TEST_SENSOR, n_residual=2, n_frames=0, with_points=True)
+    cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=1)
+    thr = evaluate_point_iou([cache], lambda c, i: ResidualThreshold(0.2).predict(c, i).astype(np.float32))
+    rg = evaluate_point_iou([cache], lambda c, i: ResidualRegionGrowing(0.1, 0.05, 0.1).predict(c, i).astype(np.float32))
+    assert thr.tp > 0 and rg.tp > 0
+    assert rg.iou > 0.2

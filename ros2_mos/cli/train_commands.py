@@ -60,3 +60,36 @@ def export(
         fail(f"checkpoint not found: {checkpoint}")
     report = export_checkpoint(checkpoint, out)
     typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.2f} MB, ONNX vs PyTorch max abs diff {report.max_abs_diff:.1e})")
+
+
+@app.command()
+def ablation(
+    config: Path = typer.Option(..., "--config", help="Base training YAML; each variant changes only network/input"),
+    data: Path = typer.Option(..., "--data", help="SemanticKITTI-format root"),
+    test: list[str] = typer.Option(..., "--test", help="Held-out test sequences (repeat the option)"),
+    variant: list[str] = typer.Option(
+        ["fastmos:residual:0", "fastmos:frames:1", "fastmos:residual:1", "fastmos:residual:8"],
+        "--variant", help="NETWORK:residual|frames:N rows (repeat the option)",
+    ),
+    runs: Path = typer.Option(Path("runs/ablation"), help="Run folders of the variants (resumed if present)"),
+    epochs: Optional[int] = typer.Option(None, help="Override the base config's epochs"),
+    baselines: bool = typer.Option(True, "--baselines/--no-baselines", help="Include the Residual / Residual+RG rows"),
+    out: Optional[Path] = typer.Option(None, "--out", help="Also write the table to this Markdown file"),
+) -> None:
+    """The paper's ablation (Tables I/II) on held-out sequences: point moving IoU with kNN back-projection."""
+    import dataclasses
+
+    from ros2_mos.training.ablation import Variant, format_table, run_ablation
+    from ros2_mos.training.trainer import TrainConfig
+
+    base = TrainConfig.from_yaml(config)
+    if epochs is not None:
+        base = dataclasses.replace(base, epochs=epochs)
+    variants = [Variant.parse(v) for v in variant]
+    rows = run_ablation(base, data, [t.zfill(2) if t.isdigit() else t for t in test], variants, runs,
+                        baselines=baselines, log=typer.echo)
+    table = format_table(rows)
+    typer.echo(table)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(table + "\n")

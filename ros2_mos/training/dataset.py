@@ -11,6 +11,7 @@ exactly the functions the node runs (:func:`~ros2_mos.projection.project`,
 
 * ``frame.npy``     (S, 5, H, W) float16: raw r, x, y, z, e of the current scan (0 = empty)
 * ``residual.npy``  (S, N_max, H, W) float16: residuals against the last N_max scans
+* ``residual_sign.npy`` (S, 2, H, W) int8: sign of r_j - r_0 of the first two (for the baselines)
 * ``past.npy``      (S, 5 * F_max, H, W) float16: the last F_max scans re-projected into this one
 * ``label.npy``     (S, H, W) int8: -1 ignore/empty, 0 static, 1 moving (label of the pixel's point)
 * ``points_*.npy``  per-point pixel, range and class, concatenated (only for evaluation sequences)
@@ -62,9 +63,13 @@ from ros2_mos.errors import ConfigError, DatasetError
 from ros2_mos.features import InputSetup, assemble_input
 from ros2_mos.labels import IGNORE, to_moving_classes
 from ros2_mos.projection import PixelIndex, RangeImage, finite_mask, project
-from ros2_mos.residuals import relative_pose, residual_images, transform_points
+from ros2_mos.residuals import past_range_image, relative_pose, residual_image, transform_points
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
+# Signs of r_j - r_0 kept for the first residuals: +1 where the past ray went farther
+# (the space of the current point was free before: it moved in), -1 where a past
+# object stood closer (it moved away).  Only the heuristic baselines use them.
+N_SIGNED = 2
 _EMPTY_PIXELS = PixelIndex(
     u=np.empty(0, np.int32), v=np.empty(0, np.int32), range=np.empty(0, np.float32), in_image=np.empty(0, bool)
 )
@@ -132,6 +137,7 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
     frame_mm = np.load(out / "frame.npy", mmap_mode="r+")
     label_mm = np.load(out / "label.npy", mmap_mode="r+")
     res_mm = np.load(out / "residual.npy", mmap_mode="r+") if spec.n_residual else None
+    sign_mm = np.load(out / "residual_sign.npy", mmap_mode="r+") if spec.n_residual else None
     past_mm = np.load(out / "past.npy", mmap_mode="r+") if spec.n_frames else None
     sensor = spec.sensor
     history = max(spec.n_residual, spec.n_frames)
@@ -148,9 +154,16 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
             lab = np.full(image.point_index.shape, IGNORE, np.int8)
         label_mm[i] = lab
         if res_mm is not None:
-            past = [(s.points, s.pose) for s in buffer[: spec.n_residual]]
-            res = residual_images(image.range, scan.pose, past, spec.n_residual, sensor, spec.residual)
+            # residual_images() of the core, unrolled to also keep the sign of r_j - r_0 for the baselines.
+            res = np.zeros((spec.n_residual, sensor.height, sensor.width), np.float32)
+            sign = np.zeros((N_SIGNED, sensor.height, sensor.width), np.int8)
+            for j, s in enumerate(buffer[: spec.n_residual]):
+                past_range = past_range_image(s.points, s.pose, scan.pose, sensor)
+                res[j] = residual_image(image.range, past_range, spec.residual)
+                if j < N_SIGNED:
+                    sign[j] = np.sign(past_range - image.range) * (res[j] > 0)
             res_mm[i] = res.astype(np.float16)
+            sign_mm[i] = sign
         if past_mm is not None:
             stack = np.zeros((5 * spec.n_frames, sensor.height, sensor.width), np.float32)
             for j, s in enumerate(buffer[: spec.n_frames]):
@@ -164,11 +177,12 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
                 u=pix.u.astype(np.int16),
                 v=pix.v.astype(np.int16),
                 range=pix.range,
+                in_image=pix.in_image,
                 classes=(to_moving_classes(scan.labels) if scan.labels is not None else np.full(len(pix.u), IGNORE, np.int8)),
             )
         buffer.insert(0, scan)
         del buffer[history:]
-    for mm in (frame_mm, label_mm, res_mm, past_mm):
+    for mm in (frame_mm, label_mm, res_mm, sign_mm, past_mm):
         if mm is not None:
             mm.flush()
     return stop - start
@@ -201,6 +215,7 @@ class SequenceCache:
         self.frame = np.load(directory / "frame.npy", mmap_mode="r")
         self.label = np.load(directory / "label.npy", mmap_mode="r")
         self.residual = np.load(directory / "residual.npy", mmap_mode="r") if spec.n_residual else None
+        self.residual_sign = np.load(directory / "residual_sign.npy", mmap_mode="r") if spec.n_residual else None
         self.past = np.load(directory / "past.npy", mmap_mode="r") if spec.n_frames else None
         self.name = json.loads((directory / "info.json").read_text())["sequence"]
 
@@ -241,6 +256,7 @@ class SequenceCache:
         np.lib.format.open_memmap(directory / "label.npy", "w+", np.int8, (s, h, w)).flush()
         if spec.n_residual:
             np.lib.format.open_memmap(directory / "residual.npy", "w+", np.float16, (s, spec.n_residual, h, w)).flush()
+            np.lib.format.open_memmap(directory / "residual_sign.npy", "w+", np.int8, (s, N_SIGNED, h, w)).flush()
         if spec.n_frames:
             np.lib.format.open_memmap(directory / "past.npy", "w+", np.float16, (s, 5 * spec.n_frames, h, w)).flush()
         if progress:
