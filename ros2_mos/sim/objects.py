@@ -1,0 +1,78 @@
+"""Label ids the simulator writes, and the shapes of its traffic participants.
+
+Shapes are a few boxes each with realistic sizes (car ~4.5 x 1.8 x 1.5 m,
+cyclist ~1.8 x 0.6 x 1.75 m, pedestrian ~0.5 x 0.5 x 1.75 m), in the object's
+own frame: x forward, y left, z up from the ground.  Each kind has a static and
+a moving semantic id; which one a point gets depends on whether the object's
+pose changed since the previous scan.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ros2_mos.sim.geometry import boxes
+
+# SemanticKITTI ids (see ros2_mos.labels.SEMANTIC_NAMES).
+CAR, PERSON, BICYCLIST = 10, 30, 31
+ROAD, SIDEWALK, BUILDING = 40, 48, 50
+VEGETATION, TRUNK, TERRAIN, POLE = 70, 71, 72, 80
+MOVING_CAR, MOVING_BICYCLIST, MOVING_PERSON = 252, 253, 254
+
+
+@dataclass(frozen=True)
+class ObjectKind:
+    """A kind of traffic participant: its label ids, its collision circles and how to shape one."""
+
+    name: str
+    static_id: int
+    moving_id: int
+    # Collision model: circles at these offsets along the heading, all of this radius.
+    circle_offsets: tuple[float, ...]
+    circle_radius: float
+
+
+CAR_KIND = ObjectKind("car", CAR, MOVING_CAR, (-1.35, 0.0, 1.35), 1.0)
+CYCLIST_KIND = ObjectKind("cyclist", BICYCLIST, MOVING_BICYCLIST, (-0.5, 0.5), 0.4)
+PEDESTRIAN_KIND = ObjectKind("pedestrian", PERSON, MOVING_PERSON, (0.0,), 0.35)
+KINDS = {k.name: k for k in (CAR_KIND, CYCLIST_KIND, PEDESTRIAN_KIND)}
+
+
+def car_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A car: lower skirt (wheels), body and cabin; ~4.5 x 1.8 x 1.5 m, jittered in size and paint."""
+    length, width = rng.uniform(4.1, 4.9), rng.uniform(1.7, 1.9)
+    cabin_top = rng.uniform(1.4, 1.6)
+    sizes = np.array([
+        [length - 0.9, width - 0.2, 0.3],
+        [length, width, 0.75],
+        [length * rng.uniform(0.45, 0.6), width - 0.15, cabin_top - 1.05],
+    ])
+    centers = np.array([[0.0, 0.0, 0.15], [0.0, 0.0, 0.675], [-0.15 * length, 0.0, 0.5 * (1.05 + cabin_top)]])
+    tris = boxes(sizes, centers)
+    paint = rng.uniform(0.05, 0.9)
+    rem = np.repeat([0.1, paint, 0.08], len(tris) // 3).astype(np.float32)  # tyres, paint, glass
+    return tris, rem
+
+
+def cyclist_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A bicycle (a thin slab) with a rider (torso and head): ~1.8 x 0.6 x 1.75 m."""
+    sizes = np.array([[1.75, 0.12, 0.9], [0.55, 0.5, 0.7], [0.22, 0.2, 0.2]])
+    centers = np.array([[0.0, 0.0, 0.5], [-0.15, 0.0, 1.3], [-0.05, 0.0, rng.uniform(1.7, 1.8)]])
+    tris = boxes(sizes, centers)
+    rem = np.repeat([0.35, rng.uniform(0.1, 0.6), 0.3], len(tris) // 3).astype(np.float32)
+    return tris, rem
+
+
+def pedestrian_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Legs, torso and head: ~0.5 x 0.5 x 1.75 m, height jittered."""
+    h = rng.uniform(1.6, 1.9)
+    sizes = np.array([[0.25, 0.38, 0.48 * h], [0.3, 0.5, 0.37 * h], [0.22, 0.2, 0.15 * h]])
+    centers = np.array([[0.0, 0.0, 0.24 * h], [0.0, 0.0, 0.665 * h], [0.0, 0.0, 0.925 * h]])
+    tris = boxes(sizes, centers)
+    rem = np.repeat([rng.uniform(0.05, 0.5), rng.uniform(0.05, 0.6), 0.3], len(tris) // 3).astype(np.float32)
+    return tris, rem
+
+
+SHAPES = {"car": car_shape, "cyclist": cyclist_shape, "pedestrian": pedestrian_shape}

@@ -1,0 +1,201 @@
+"""The static world: road, sidewalks, terrain, buildings, trees, poles and parked cars.
+
+Built once per sequence, only for the blocks the sensor can reach from the ego
+route.  Facades vary in setback, width, height and gaps, trees and poles line
+the curbs and cross streets come at irregular distances, so the scene gives
+ICP constraints in every direction (a uniform corridor would not).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ros2_mos.sim import objects as ob
+from ros2_mos.sim.geometry import TriangleSoup, boxes, octahedron, place, prism, quad
+from ros2_mos.sim.presets import SceneConfig, StreetConfig
+from ros2_mos.sim.road import StreetGrid
+
+# Keep street furniture this far from a sidewalk's corners, so that people
+# walking round a corner and cars turning never meet a pole or a trunk.
+_CORNER_CLEARANCE = 4.0
+# Parked cars keep this far from the curb's corner (out of the intersection).
+_PARKING_CLEARANCE = 5.0
+_SLOT_LENGTH = 6.0
+
+
+@dataclass
+class StaticScene:
+    """The static triangles with their labels, and the parked cars' instance ids and positions."""
+
+    soup: TriangleSoup
+    parked_ids: np.ndarray
+    parked_xy: np.ndarray
+    next_instance: int
+
+
+def blocks_near(grid: StreetGrid, points: np.ndarray, reach: float) -> list[tuple[int, int]]:
+    """Grid cells (i, j) whose rectangle lies within ``reach`` of any of ``points`` (P, 2)."""
+    x0, x1 = grid.xs[:-1], grid.xs[1:]
+    y0, y1 = grid.ys[:-1], grid.ys[1:]
+    px, py = points[:, 0], points[:, 1]
+    dy2 = np.maximum(np.maximum(y0[:, None] - py[None], py[None] - y1[:, None]), 0.0) ** 2  # (J, P)
+    cells: list[tuple[int, int]] = []
+    for i in range(len(x0)):  # one row of cells at a time keeps memory at (J, P)
+        dx2 = np.maximum(np.maximum(x0[i] - px, px - x1[i]), 0.0) ** 2
+        if dx2.min() >= reach**2:
+            continue
+        near = ((dx2[None, :] + dy2) < reach**2).any(axis=1)
+        cells.extend((i, int(j)) for j in np.nonzero(near)[0])
+    return cells
+
+
+def _along(rng: np.random.Generator, length: float, spacing: tuple[float, float], margin: float) -> np.ndarray:
+    """Positions along a side of ``length``: random spacing, ``margin`` from both ends."""
+    if length <= 2 * margin:
+        return np.zeros(0)
+    count = int(length / spacing[0]) + 2
+    pos = margin + np.cumsum(rng.uniform(*spacing, count)) - rng.uniform(0, spacing[0])
+    return pos[(pos >= margin) & (pos <= length - margin)]
+
+
+def _sides(x0: float, y0: float, x1: float, y1: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """The 4 sides of a rectangle as (start corner, unit direction, length), walked counter-clockwise.
+
+    The rectangle's inside is to the left of each direction.
+    """
+    return [
+        (np.array([x0, y0]), np.array([1.0, 0.0]), x1 - x0),
+        (np.array([x1, y0]), np.array([0.0, 1.0]), y1 - y0),
+        (np.array([x1, y1]), np.array([-1.0, 0.0]), x1 - x0),
+        (np.array([x0, y1]), np.array([0.0, -1.0]), y1 - y0),
+    ]
+
+
+class _Builder:
+    """Collects labelled pieces of one sequence's static scene."""
+
+    def __init__(self, rng: np.random.Generator, street: StreetConfig, scene: SceneConfig, first_instance: int):
+        self.rng, self.street, self.scene = rng, street, scene
+        self.parts: list[TriangleSoup] = []
+        self.parked_ids: list[int] = []
+        self.parked_xy: list[np.ndarray] = []
+        self.next_instance = first_instance
+
+    def add(self, tris: np.ndarray, sem: int, remission: float | np.ndarray, inst: int = 0) -> None:
+        tris = np.asarray(tris, float).reshape(-1, 3, 3)
+        soup = TriangleSoup.labelled(tris, sem, inst)
+        soup.remission[:] = remission
+        self.parts.append(soup)
+
+    def block(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        st, rng = self.street, self.rng
+        hr, sw, ch = st.half_road_width, st.sidewalk_width, st.curb_height
+        self.add(quad(x0, y0, x1, y1, 0.0), ob.ROAD, rng.uniform(0.08, 0.2))
+        ox0, oy0, ox1, oy1 = x0 + hr, y0 + hr, x1 - hr, y1 - hr  # curb
+        ix0, iy0, ix1, iy1 = ox0 + sw, oy0 + sw, ox1 - sw, oy1 - sw  # back of the sidewalk
+        strips = np.array([
+            [ox0, oy0, ox1, iy0], [ox0, iy1, ox1, oy1], [ox0, iy0, ix0, iy1], [ix1, iy0, ox1, iy1],
+        ])
+        sizes = np.column_stack([strips[:, 2] - strips[:, 0], strips[:, 3] - strips[:, 1], np.full(4, ch)])
+        centers = np.column_stack([(strips[:, 0] + strips[:, 2]) / 2, (strips[:, 1] + strips[:, 3]) / 2, np.full(4, ch / 2)])
+        self.add(boxes(sizes, centers), ob.SIDEWALK, rng.uniform(0.25, 0.4))
+        self.add(quad(ix0, iy0, ix1, iy1, ch), ob.TERRAIN, rng.uniform(0.35, 0.55))
+        for start, direction, length in _sides(ix0, iy0, ix1, iy1):
+            self._frontage(start, direction, length, depth_limit=0.5 * min(ix1 - ix0, iy1 - iy0))
+        for start, direction, length in _sides(ox0, oy0, ox1, oy1):
+            self._curbside(start, direction, length)
+
+    def _frontage(self, start: np.ndarray, direction: np.ndarray, length: float, depth_limit: float) -> None:
+        """Buildings (and hedges in front gardens) along one side of a block's interior."""
+        sc, rng = self.scene, self.rng
+        inward = np.array([-direction[1], direction[0]])
+        u = 0.0
+        sizes, centers, rems = [], [], []
+        hedge_sizes, hedge_centers = [], []
+        while u < length - 3.0:
+            width = min(rng.uniform(*sc.building_width), length - u)
+            if rng.random() >= sc.empty_lot_prob:
+                setback = rng.uniform(*sc.setback) if rng.random() > 0.2 else rng.uniform(5.0, 9.0)
+                depth = min(rng.uniform(*sc.building_depth), max(depth_limit - setback - 0.5, 3.0))
+                height = rng.uniform(*sc.building_height)
+                gap = rng.uniform(0.0, 3.0) if rng.random() < 0.4 else 0.0
+                mid = start + direction * (u + width / 2) + inward * (setback + depth / 2)
+                size_along = max(width - gap, 2.0)
+                size = (abs(direction[0]) * size_along + abs(inward[0]) * depth,
+                        abs(direction[1]) * size_along + abs(inward[1]) * depth, height)
+                sizes.append(size)
+                centers.append((mid[0], mid[1], height / 2))
+                rems.append(rng.uniform(0.15, 0.6))
+                if setback > 1.5 and rng.random() < sc.bush_prob:
+                    h = rng.uniform(0.6, 1.6)
+                    hm = start + direction * (u + width / 2) + inward * (setback / 2)
+                    d = min(0.8, setback - 0.4)
+                    hedge_sizes.append((abs(direction[0]) * width * 0.8 + abs(inward[0]) * d,
+                                        abs(direction[1]) * width * 0.8 + abs(inward[1]) * d, h))
+                    hedge_centers.append((hm[0], hm[1], h / 2))
+            u += width
+        if sizes:
+            tris = boxes(np.array(sizes), np.array(centers))
+            self.add(tris, ob.BUILDING, np.repeat(np.array(rems, np.float32), len(tris) // len(sizes)))
+        if hedge_sizes:
+            self.add(boxes(np.array(hedge_sizes), np.array(hedge_centers)), ob.VEGETATION, rng.uniform(0.4, 0.6))
+
+    def _curbside(self, start: np.ndarray, direction: np.ndarray, length: float) -> None:
+        """Trees and poles on the sidewalk along a curb, parked cars in the parking lane before it."""
+        sc, st, rng = self.scene, self.street, self.rng
+        inward = np.array([-direction[1], direction[0]])  # from the curb into the block
+        ch = st.curb_height
+        tree_u = _along(rng, length, sc.tree_spacing, _CORNER_CLEARANCE)
+        tree_u = tree_u[rng.random(len(tree_u)) < sc.tree_prob]
+        if len(tree_u):
+            xy = start + np.outer(tree_u, direction) + inward * 0.6
+            for x, y in xy:  # a handful per side; each tree has its own size
+                trunk_h = rng.uniform(2.0, 3.5)
+                self.add(place(prism(rng.uniform(0.12, 0.2), 0.0, trunk_h), x, y, rng.uniform(0, np.pi), ch),
+                         ob.TRUNK, rng.uniform(0.3, 0.45))
+                rz = rng.uniform(1.2, 2.5)
+                crown = octahedron(rng.uniform(1.5, 3.0), rz, trunk_h + 0.7 * rz)
+                self.add(place(crown, x, y, rng.uniform(0, np.pi), ch), ob.VEGETATION, rng.uniform(0.4, 0.65))
+        pole_u = _along(rng, length, sc.pole_spacing, _CORNER_CLEARANCE)
+        if len(pole_u):
+            xy = start + np.outer(pole_u, direction) + inward * 0.3
+            heights = rng.uniform(4.5, 8.0, len(pole_u))
+            tris = np.concatenate([place(prism(0.1, 0.0, h), x, y, 0.0, ch)[0] for (x, y), h in zip(xy, heights)])
+            self.add(tris, ob.POLE, rng.uniform(0.4, 0.6))
+        self._parking(start, direction, length, -inward)
+
+    def _parking(self, start: np.ndarray, direction: np.ndarray, length: float, outward: np.ndarray) -> None:
+        st, rng = self.street, self.rng
+        usable = length - 2 * _PARKING_CLEARANCE
+        n_slots = int(usable // _SLOT_LENGTH)
+        if n_slots <= 0:
+            return
+        slot_u = _PARKING_CLEARANCE + _SLOT_LENGTH * (np.arange(n_slots) + 0.5) + (usable - n_slots * _SLOT_LENGTH) / 2
+        slot_u = slot_u[rng.random(n_slots) < self.scene.parked_prob]
+        heading = float(np.arctan2(direction[1], direction[0]))
+        for u in slot_u:
+            tris, rem = ob.car_shape(rng)
+            lateral = 0.5 * st.parking_width + rng.uniform(-0.15, 0.1)
+            xy = start + direction * (u + rng.uniform(-0.4, 0.4)) + outward * lateral
+            yaw = heading + (np.pi if rng.random() < 0.3 else 0.0) + rng.normal(0.0, 0.03)
+            inst = self.next_instance
+            self.next_instance += 1
+            self.add(place(tris, xy[0], xy[1], yaw)[0], ob.CAR, rem, inst)
+            self.parked_ids.append(inst)
+            self.parked_xy.append(xy)
+
+
+def build_static_scene(rng: np.random.Generator, grid: StreetGrid, street: StreetConfig, scene: SceneConfig,
+                       route_points: np.ndarray, reach: float, first_instance: int = 1) -> StaticScene:
+    """Every block within ``reach`` of ``route_points``; parked cars get instance ids from ``first_instance``."""
+    builder = _Builder(rng, street, scene, first_instance)
+    for i, j in blocks_near(grid, route_points, reach):
+        builder.block(grid.xs[i], grid.ys[j], grid.xs[i + 1], grid.ys[j + 1])
+    return StaticScene(
+        TriangleSoup.concat(builder.parts),
+        np.asarray(builder.parked_ids, np.int64),
+        np.asarray(builder.parked_xy, float).reshape(-1, 2),
+        builder.next_instance,
+    )

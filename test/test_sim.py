@@ -1,0 +1,206 @@
+"""The simulator: ray casting by hand, written files, labels against the world's truth, poses, determinism."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ros2_mos.config import SENSOR_PRESETS, SensorConfig
+from ros2_mos.datasets.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_label, read_poses, read_scan
+from ros2_mos.errors import ConfigError
+from ros2_mos.labels import MOVING_IDS, semantic_ids, instance_ids
+from ros2_mos.sim import SequenceSimulator, format_stats, sequence_dir, simulate_sequence, with_effects, sim_preset
+from ros2_mos.sim.geometry import TriangleSoup, box, quad
+from ros2_mos.sim.lidar import Lidar, beam_elevations
+from ros2_mos.sim.motion import Stop, simulate_profile
+from ros2_mos.sim.presets import SensorEffects
+from ros2_mos.sim.raycast import SoupScene, cast_nearest
+from ros2_mos.sim.road import Path as RoutePath
+
+SMALL = SensorConfig("small", 32, 512, 10.0, -25.0, 0.0, 120.0)
+NO_NOISE = SensorEffects(range_sigma=0.0, dropout=0.0, grazing_dropout=0.0, far_dropout=0.0, remission_sigma=0.0,
+                         ego_clearance=0.0)
+
+
+# -- ray casting and the sensor by hand ---------------------------------------------------------------
+
+
+def test_ray_cast_hits_a_box_and_a_plane_at_the_analytic_distance() -> None:
+    ground = TriangleSoup.labelled(quad(-50, -50, 50, 50, 0.0), 40)
+    wall = TriangleSoup.labelled(box((1.0, 4.0, 4.0), (10.5, 0.0, 2.0)), 50, inst=7)
+    origin = np.array([0.0, 0.0, 1.0])
+    dirs = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, -1.0] / np.sqrt(2), [0.0, 0.0, 1.0], [10.0, 1.0, 2.0] / np.sqrt(105.0)])
+    hits = cast_nearest([SoupScene(ground, origin * 0), SoupScene(wall, np.array([100.0, 0.0, 0.0]))], origin, dirs)
+    # front face of the box at x = 10; the ground 1 m below at 45 degrees; nothing above; (10, 1, 3) on the face
+    assert hits.distance[0] == pytest.approx(10.0, abs=1e-4)
+    assert hits.soup[0] == 1 and wall.inst[hits.triangle[0]] == 7
+    assert hits.distance[1] == pytest.approx(np.sqrt(2.0), abs=1e-4) and hits.soup[1] == 0
+    assert np.isinf(hits.distance[2]) and hits.triangle[2] == -1
+    assert hits.distance[3] == pytest.approx(np.sqrt(105.0), abs=1e-4) and hits.soup[3] == 1
+    assert np.allclose(np.abs(hits.normal[0]), [1, 0, 0], atol=1e-6)
+
+
+def test_noise_free_lidar_sees_the_ground_at_the_sensor_height() -> None:
+    ground = TriangleSoup.labelled(quad(-500, -500, 500, 500, 0.0), 40)
+    lidar = Lidar(SMALL, NO_NOISE)
+    scan = lidar.scan([SoupScene(ground, np.zeros(3))], 0.0, 0.0, 0.3, np.random.default_rng(0))
+    down = beam_elevations(SMALL) < np.radians(-0.6)  # beams that meet the ground within 120 m
+    assert len(scan.points) == down.sum() * SMALL.width
+    assert np.allclose(scan.points[:, 2], -NO_NOISE.sensor_height, atol=1e-4)
+    assert (scan.sem == 40).all() and (scan.inst == 0).all()
+
+
+def test_hdl64_layout_and_point_count_are_plausible() -> None:
+    el = np.degrees(beam_elevations(SENSOR_PRESETS["hdl64"]))
+    assert len(el) == 64 and el[0] == pytest.approx(2.0) and el[-1] == pytest.approx(-24.8)
+    assert (np.diff(el) < 0).all()
+    sim = SequenceSimulator(1, "benchmark", seed=3)
+    scan = sim.scan(0).scan
+    assert 60_000 <= len(scan.points) <= 130_000
+    assert np.isfinite(scan.points).all() and np.isfinite(scan.remission).all()
+    assert (scan.remission >= 0).all() and (scan.remission <= 1).all()
+    r = np.linalg.norm(scan.points, axis=1)
+    assert r.min() >= sim.preset.effects.ego_clearance and r.max() <= SENSOR_PRESETS["hdl64"].max_range + 1
+    # a street scene: road, buildings and cars all show up
+    assert {40, 48, 50, 10} <= set(np.unique(scan.sem).tolist())
+
+
+# -- motion -----------------------------------------------------------------------------------------
+
+
+def test_stops_are_exactly_still_and_speeds_respect_the_cruise() -> None:
+    prof = simulate_profile(0.0, 40.0, 10.0, [Stop(100.0, 5.0)])
+    t = np.arange(0.0, 40.0, 0.1)
+    s = prof.at(t)
+    assert (np.diff(s) >= 0).all()
+    v = np.diff(s) / 0.1
+    assert v.max() <= 10.0 + 1e-6
+    still = np.diff(s) == 0.0
+    assert 45 <= still.sum() <= 52  # ~5 s at 10 Hz, held exactly
+    assert np.allclose(s[1:][still], 100.0)
+
+
+def test_route_offsets_move_continuously_through_corners() -> None:
+    pts = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 80.0], [0.0, 80.0]])
+    path = RoutePath.from_nodes(pts, radius=12.0)
+    assert path.length == pytest.approx(100 + 80 + 100 - 4 * 12 + 2 * np.pi * 12 / 2, rel=1e-3)
+    s = np.linspace(0, path.length, 5000)
+    for lateral in (-8.8, -1.75, 0.0, 5.25):
+        x, y, _ = path.pose(s, lateral)
+        assert np.hypot(np.diff(x), np.diff(y)).max() < 0.2
+
+
+# -- written sequences ------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
+    out = tmp_path_factory.mktemp("sim")
+    stats = simulate_sequence(out, "00", 25, preset="benchmark", seed=11, sensor=SMALL)
+    return out, stats
+
+
+def test_written_files_load_with_the_reader_and_with_numpy(written: tuple[Path, object]) -> None:
+    out, stats = written
+    root = sequence_dir(out, "00")
+    seq = SemanticKittiSequence(root)
+    assert len(seq) == 25 and seq.has_labels and seq.poses is not None
+    assert np.allclose(seq.times, np.arange(25) * 0.1)
+    for k in (0, 12, 24):
+        frame = seq[k]
+        raw = np.fromfile(root / "velodyne" / f"{k:06d}.bin", dtype=np.float32).reshape(-1, 4)
+        labels = np.fromfile(root / "labels" / f"{k:06d}.label", dtype=np.uint32)
+        assert len(raw) == len(labels) == len(frame.points) > 0.5 * SMALL.height * SMALL.width
+        assert np.isfinite(raw).all()
+        assert np.array_equal(raw[:, :3], frame.points) and np.array_equal(labels, frame.labels)
+    assert stats.n_scans == 25 and len(stats.points) == 25  # type: ignore[attr-defined]
+
+
+def test_poses_chain_with_the_ego_motion(written: tuple[Path, object]) -> None:
+    out, _ = written
+    root = sequence_dir(out, "00")
+    poses = read_poses(root / "poses.txt", KITTI_TR)  # LiDAR poses back from camera poses
+    assert np.allclose(poses[0], np.eye(4), atol=1e-9)
+    sim = SequenceSimulator(25, "benchmark", seed=11, sensor=SMALL, name="00")
+    steps = np.linalg.inv(poses[:-1]) @ poses[1:]
+    moved = np.linalg.norm(steps[:, :3, 3], axis=1)
+    ego = np.hypot(np.diff(sim.traffic.ego_x[1:]), np.diff(sim.traffic.ego_y[1:]))
+    assert np.allclose(moved, ego, atol=1e-6)
+    assert np.allclose(steps[:, 2, 3], 0.0, atol=1e-9)  # flat ground
+    for k in (5, 24):
+        assert np.allclose(poses[k], np.linalg.inv(sim.world_pose(0)) @ sim.world_pose(k), atol=1e-6)
+
+
+def test_moving_labels_exactly_on_objects_whose_pose_changed(written: tuple[Path, object]) -> None:
+    out, _ = written
+    sim = SequenceSimulator(25, "benchmark", seed=11, sensor=SMALL, name="00")
+    agents = {a.inst: a for a in sim.traffic.agents}
+    parked = set(sim.static.parked_ids.tolist())
+    seen_moving = 0
+    for k in range(25):
+        labels = read_label(sequence_dir(out, "00") / "labels" / f"{k:06d}.label")
+        sem, inst = semantic_ids(labels), instance_ids(labels)
+        moving = np.isin(sem, MOVING_IDS)
+        assert set(np.unique(inst[moving]).tolist()) <= set(agents)
+        for i in np.unique(inst[inst > 0]).tolist():
+            s = np.unique(sem[inst == i])
+            assert len(s) == 1, "one object, one label per scan"
+            if i in parked:
+                assert s[0] == 10
+                continue
+            agent = agents[i]
+            assert (s[0] == agent.kind.moving_id) == bool(agent.moving[k])
+            assert s[0] in (agent.kind.moving_id, agent.kind.static_id)
+            seen_moving += int(agent.moving[k])
+        assert (inst[np.isin(sem, [40, 48, 50, 70, 71, 72, 80])] == 0).all()
+    assert seen_moving > 0
+
+
+def test_same_seed_same_bytes_other_seed_other_scene(tmp_path: Path) -> None:
+    for run in ("a", "b"):
+        simulate_sequence(tmp_path / run, "03", 3, preset="easy", seed=5, sensor=SMALL)
+    simulate_sequence(tmp_path / "c", "03", 3, preset="easy", seed=6, sensor=SMALL)
+    for name in ("velodyne/000002.bin", "labels/000002.label", "poses.txt"):
+        a, b, c = ((tmp_path / r / "sequences" / "03" / name).read_bytes() for r in "abc")
+        assert a == b
+        if name.startswith("velodyne"):
+            assert a != c
+
+
+def test_presets_differ_in_how_much_moves() -> None:
+    def moving_fraction(preset: str, seed: int) -> float:
+        sim = SequenceSimulator(12, preset, seed=seed, sensor=SMALL)
+        scans = [sim.scan(k).scan for k in range(0, 12, 3)]
+        return float(np.mean([np.isin(s.sem, MOVING_IDS).mean() for s in scans]))
+
+    jam = np.mean([moving_fraction("traffic_jam", s) for s in (1, 2)])
+    bench = np.mean([moving_fraction("benchmark", s) for s in (1, 2)])
+    assert jam > 0.08 and jam > 2 * bench
+
+
+def test_parked_cars_are_static_and_at_least_as_many_as_moving_ones(written: tuple[Path, object]) -> None:
+    _, stats = written
+    assert len(stats.parked_cars) >= stats.n_moving_objects > 0  # type: ignore[attr-defined]
+    text = format_stats([stats])  # type: ignore[list-item]
+    assert "moving points" in text and "parked cars" in text
+
+
+def test_intra_sweep_motion_skews_a_moving_scan_only() -> None:
+    base = SequenceSimulator(30, "easy", seed=2, sensor=SMALL)
+    skew = SequenceSimulator(30, with_effects(sim_preset("easy"), intra_sweep_motion=True), seed=2, sensor=SMALL)
+    speeds = np.hypot(np.diff(base.traffic.ego_x), np.diff(base.traffic.ego_y)) / 0.1
+    k = int(np.argmax(speeds[1:]))
+    a, b = base.scan(k).scan, skew.scan(k).scan
+    assert np.isfinite(b.points).all()
+    assert not (len(a.points) == len(b.points) and np.allclose(a.points, b.points))
+
+
+def test_bad_arguments_raise_typed_errors(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError):
+        SequenceSimulator(0, "easy")
+    with pytest.raises(ConfigError):
+        SequenceSimulator(1, "rush_hour")
+    with pytest.raises(ConfigError):
+        simulate_sequence(tmp_path, "00", 1, preset="easy", sensor="hdl65")
