@@ -9,4 +9,5 @@ from ros2_mos.cli import core_commands  # noqa: F401  (infer, eval)
 
 __all__ = ["app", "main"]
 from ros2_mos.cli import train_commands  # noqa: F401
+from ros2_mos.cli import ros_commands  # noqa: F401
 from ros2_mos.cli import sim_commands  # noqa: F401

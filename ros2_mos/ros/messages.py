@@ -215,3 +215,18 @@ def _format(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:.3f}"
     return str(value)
+
+
+def copy_cloud(types: MessageTypes, msg: Any) -> Any:
+    """A PointCloud2 of ``types`` with the same header, layout and bytes as ``msg`` (of any backend).
+
+    Used to publish bag messages (rosbags) with rclpy in ``replay``.
+    """
+    header = make_header(types, stamp_ns(msg.header.stamp), str(msg.header.frame_id))
+    fields = [types.point_field(name=f.name, offset=int(f.offset), datatype=int(f.datatype), count=int(f.count))
+              for f in msg.fields]
+    data = msg.data if isinstance(msg.data, np.ndarray) else np.frombuffer(msg.data, dtype=np.uint8)
+    return types.point_cloud2(header=header, height=int(msg.height), width=int(msg.width), fields=fields,
+                              is_bigendian=bool(msg.is_bigendian), point_step=int(msg.point_step),
+                              row_step=int(msg.row_step), data=types.bytes_payload(data),
+                              is_dense=bool(msg.is_dense))

@@ -227,12 +227,18 @@ class MosNode(Node):
         self._queue.close()
         if self._worker is not None and self._worker is not threading.current_thread():
             self._worker.join(timeout)
-        if self._worker is not None:
-            self.get_logger().info("final statistics: " + summary_line(self.stats.snapshot()))
 
     def destroy_node(self) -> None:
+        """Stop the worker, destroy the node, then log the final statistics.
+
+        Logged after destruction through a plain logger: after Ctrl-C the context is
+        already shut down and the node's /rosout publisher could not carry the line.
+        """
+        started = self._worker is not None
         self.stop()
         super().destroy_node()
+        if started:
+            rclpy.logging.get_logger(NODE_NAME).info("final statistics: " + summary_line(self.stats.snapshot()))
 
 
 def main(args: list[str] | None = None) -> None:

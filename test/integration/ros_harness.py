@@ -1,0 +1,99 @@
+"""Helpers for the node tests: an in-process mos_node, a peer that feeds and listens, cloud builders."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from ros2_mos.pointcloud2 import fill_xyzi
+from ros2_mos.ros import messages as m
+
+TYPES = m.MessageTypes.rclpy()
+OUTPUTS = {"static_points": TYPES.point_cloud2, "moving_points": TYPES.point_cloud2, "labels": TYPES.point_cloud2,
+           "range_image": TYPES.image, "mask": TYPES.image, "odometry": TYPES.odometry}
+BASE_STAMP = 1_700_000_000_000_000_000
+
+
+def isolate_ros(domain_id: int) -> None:
+    """Per-run domain and localhost-only discovery, so parallel runs and other hosts never interfere."""
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+
+def cloud(stamp: int, points: np.ndarray, intensity: np.ndarray | None = None, frame: str = "velodyne") -> Any:
+    return fill_xyzi(m.empty_cloud(TYPES, m.make_header(TYPES, stamp, frame)), points, intensity,
+                     field_factory=TYPES.point_field)
+
+
+class Harness:
+    """mos_node and a peer node (publisher of /points, subscriber of every output) on one executor."""
+
+    def __init__(self, context: Context, overrides: dict[str, Any]) -> None:
+        from ros2_mos.ros.node import MosNode
+
+        self.context = context
+        self.node = MosNode(context=context,
+                            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+        self.peer = rclpy.create_node("mos_test_peer", context=context)
+        self.received: dict[str, list[Any]] = defaultdict(list)
+        self._cond = threading.Condition()
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        for key, typ in OUTPUTS.items():
+            self.peer.create_subscription(typ, f"/mos/{key}", lambda msg, k=key: self._on(k, msg), qos)
+        self.peer.create_subscription(TYPES.diagnostic_array, "/diagnostics", lambda msg: self._on("diag", msg), 10)
+        self.pub = self.peer.create_publisher(TYPES.point_cloud2, "/points", qos)
+        self.executor = MultiThreadedExecutor(num_threads=2, context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.peer)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        self._wait(lambda: self.pub.get_subscription_count() > 0, 5.0)
+
+    def _on(self, key: str, msg: Any) -> None:
+        with self._cond:
+            self.received[key].append(msg)
+            self._cond.notify_all()
+
+    def _wait(self, predicate: Any, timeout: float) -> bool:
+        with self._cond:
+            return self._cond.wait_for(predicate, timeout=timeout)
+
+    def handled(self) -> int:
+        s = self.node.stats.snapshot()
+        return s.processed + s.skipped_total + s.errors
+
+    def feed(self, msg: Any, timeout: float = 20.0) -> dict[str, Any] | None:
+        """Publish one cloud and wait until the node handled it; its outputs by topic, or None if skipped."""
+        stamp = m.stamp_ns(msg.header.stamp)
+        before = self.handled()
+        processed_before = self.node.stats.snapshot().processed
+        self.pub.publish(msg)
+        deadline = time.monotonic() + timeout
+        while self.handled() == before:
+            assert time.monotonic() < deadline, "node did not handle the cloud in time"
+            time.sleep(0.005)
+        if self.node.stats.snapshot().processed == processed_before:
+            return None
+
+        def complete() -> bool:
+            return all(any(m.stamp_ns(x.header.stamp) == stamp for x in self.received[k]) for k in OUTPUTS)
+
+        assert self._wait(complete, 5.0), f"not every output arrived for stamp {stamp}"
+        with self._cond:
+            return {k: next(x for x in self.received[k] if m.stamp_ns(x.header.stamp) == stamp) for k in OUTPUTS}
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+        self.peer.destroy_node()

@@ -1,0 +1,170 @@
+"""Output message builders (both backends), the drop-oldest queue, statistics and the scan processor."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from scenes import street_sequence
+
+from ros2_mos.config import MosConfig
+from ros2_mos.errors import ScanError
+from ros2_mos.pipeline import MosPipeline
+from ros2_mos.pointcloud2 import decode_xyz_intensity, fill_xyzi, view_cloud
+from ros2_mos.ros import messages as m
+from ros2_mos.ros.latest_queue import LatestQueue
+from ros2_mos.ros.params import node_settings
+from ros2_mos.ros.processor import ScanProcessor, SkippedScan
+from ros2_mos.ros.stats import NodeStats, summary_line
+
+BACKENDS = ["rclpy", "rosbags"]
+
+
+def _types(name: str) -> m.MessageTypes:
+    if name == "rclpy":
+        pytest.importorskip("sensor_msgs")
+    return getattr(m.MessageTypes, name)()
+
+
+def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def _quat_to_matrix(x, y, z, w):
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+@pytest.mark.parametrize("angles", [(0, 0, 0), (np.pi, 0, 0), (0, np.pi, 0), (0, 0, np.pi), (0.3, -1.2, 2.9),
+                                    (np.pi / 2, np.pi / 2, 0), (-3.0, 0.1, -0.2)])
+def test_quaternion_round_trip(angles):
+    r = _rotation(*angles)
+    q = m.rotation_to_quaternion(r)
+    assert abs(np.linalg.norm(q) - 1) < 1e-12 and q[3] >= 0
+    np.testing.assert_allclose(_quat_to_matrix(*q), r, atol=1e-9)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_images_odometry_tf_diagnostics(backend):
+    types = _types(backend)
+    header = m.make_header(types, 1_500_000_000_123_456_789, "lidar")
+    assert m.stamp_ns(header.stamp) == 1_500_000_000_123_456_789
+    rng = np.arange(12, dtype=np.float32).reshape(3, 4)
+    img = m.image_msg(types, header, rng)
+    assert (img.height, img.width, img.step, img.encoding) == (3, 4, 16, "32FC1")
+    np.testing.assert_array_equal(np.frombuffer(bytes(img.data), "<f4").reshape(3, 4), rng)
+    mask = m.image_msg(types, header, np.eye(3, 4, dtype=np.uint8) * 255)
+    assert mask.encoding == "mono8" and mask.step == 4
+    pose = np.eye(4)
+    pose[:3, :3] = _rotation(0.5, 0, 0)
+    pose[:3, 3] = [1, 2, 3]
+    odom = m.odometry_msg(types, m.make_header(types, 5, "odom"), "lidar", pose)
+    assert odom.child_frame_id == "lidar" and odom.pose.pose.position.z == 3.0
+    assert abs(odom.pose.pose.orientation.z - np.sin(0.25)) < 1e-12
+    tf = m.tf_msg(types, m.make_header(types, 5, "odom"), "lidar", pose)
+    if types.tf_message is None:
+        assert tf is None
+    else:
+        assert tf.transforms[0].transform.translation.y == 2.0
+    diag = m.diagnostics_msg(types, header, "mos", "hw", m.WARN, "degraded", {"rate_hz": 9.87654, "n": 3})
+    status = diag.status[0]
+    assert [(kv.key, kv.value) for kv in status.values] == [("rate_hz", "9.877"), ("n", "3")]
+    assert status.level in (m.WARN, bytes([m.WARN]))
+
+
+def test_copy_cloud_between_backends():
+    pytest.importorskip("sensor_msgs")
+    rosbags, rclpy_types = m.MessageTypes.rosbags(), m.MessageTypes.rclpy()
+    pts = np.random.default_rng(0).normal(size=(50, 3)).astype(np.float32)
+    src = fill_xyzi(m.empty_cloud(rosbags, m.make_header(rosbags, 7, "a")), pts, None,
+                    field_factory=rosbags.point_field)
+    dst = m.copy_cloud(rclpy_types, src)
+    assert type(dst).__module__.startswith("sensor_msgs")
+    np.testing.assert_array_equal(decode_xyz_intensity(dst)[0], pts)
+    back = m.copy_cloud(rosbags, dst)
+    assert isinstance(back.data, np.ndarray) and m.stamp_ns(back.header.stamp) == 7
+
+
+def test_latest_queue_drops_the_oldest_and_closes():
+    q: LatestQueue[int] = LatestQueue(1)
+    assert q.put(1) is False
+    assert q.put(2) is True and q.put(3) is True
+    assert q.dropped == 2 and len(q) == 1 and q.get(0) == 3
+    assert q.get(timeout=0.01) is None
+    got = []
+    t = threading.Thread(target=lambda: got.append(q.get(timeout=5)))
+    t.start()
+    q.close()
+    t.join(2)
+    assert got == [None] and q.closed and q.put(4) is False
+    with pytest.raises(ValueError):
+        LatestQueue(0)
+
+
+def test_stats_snapshot_and_summary():
+    now = [0.0]
+    s = NodeStats(window=10, clock=lambda: now[0])
+    for i in range(5):
+        now[0] = i * 0.1
+        s.on_received()
+        s.on_processed({"total": 50.0 + i, "decode": 1.0}, latency_ms=60.0, degraded=i == 0)
+    s.on_dropped()
+    s.on_skipped("too_few_points", "only 3 points")
+    snap = s.snapshot()
+    assert snap.processed == 5 and snap.dropped == 1 and snap.degraded == 1 and snap.skipped_total == 1
+    assert abs(snap.rate_hz - 10.0) < 1e-6
+    assert snap.stage_ms["total"] == (52.0, 54.0)
+    assert "10.0 Hz" in summary_line(snap)
+    now[0] = 100.0
+    assert s.snapshot().rate_hz == 0.0
+
+
+def test_processor_outputs_and_skips(tiny_model_path):
+    types = m.MessageTypes.rosbags()
+    proc = ScanProcessor(MosPipeline(MosConfig(model=str(tiny_model_path))),
+                         node_settings({"reset_after_gap": 0.5}), types)
+    seq = street_sequence(4)
+    for i, (pts, rem, _, _) in enumerate(seq[:3]):
+        msg = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18 + i * 10**8, "v")), pts, rem,
+                        field_factory=types.point_field)
+        out = proc.process(msg)
+    assert set(out.messages) == {"static_points", "moving_points", "labels", "range_image", "mask", "odometry", "tf"}
+    assert out.messages["static_points"].width + out.messages["moving_points"].width == len(seq[2][0])
+    assert view_cloud(out.messages["labels"]).records["moving"].sum() == out.n_moving > 0
+    assert {"decode", "odometry", "inference", "encode", "total"} <= set(out.timings)
+    with pytest.raises(SkippedScan, match="repeats"):
+        proc.process(msg)
+    # A gap longer than reset_after_gap resets the buffer.
+    late = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18 + 10 * 10**8, "v")), *seq[3][:2],
+                     field_factory=types.point_field)
+    out = proc.process(late)
+    assert out.reset and not out.result.residuals_complete and "reset_after_gap" in out.notes[0]
+    tiny = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18 + 11 * 10**8, "v")),
+                     np.ones((3, 3), np.float32), None, field_factory=types.point_field)
+    with pytest.raises(SkippedScan, match="min_points") as info:
+        proc.process(tiny)
+    assert info.value.reason == "too_few_points"
+    broken = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18 + 12 * 10**8, "v")), *seq[0][:2],
+                       field_factory=types.point_field)
+    broken.row_step = 3
+    with pytest.raises(ScanError, match="row_step"):
+        proc.process(broken)
+
+
+def test_processor_withholds_incomplete_labels_when_asked(tiny_model_path):
+    types = m.MessageTypes.rosbags()
+    proc = ScanProcessor(MosPipeline(MosConfig(model=str(tiny_model_path))),
+                         node_settings({"publish_incomplete": False}), types)
+    pts, rem = street_sequence(1)[0][:2]
+    msg = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18, "v")), pts, rem,
+                    field_factory=types.point_field)
+    out = proc.process(msg)
+    assert out.labels_withheld
+    assert not {"static_points", "moving_points", "labels", "mask"} & set(out.messages)
+    assert {"odometry", "range_image"} <= set(out.messages)
