@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -20,7 +20,6 @@ from ros2_mos.pointcloud2 import (
     INT16,
     MAX_POINTS,
     UINT8,
-    UINT16,
     CloudFieldError,
     CloudLayoutError,
     decode_xyz_intensity,
@@ -138,7 +137,6 @@ def test_empty_only_nan_and_single_point() -> None:
     dt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
     pts, inten, valid = decode_xyz_intensity(make_cloud(dt, np.zeros(0, dtype=dt)))
     assert pts.shape == (0, 3) and inten.shape == (0,) and valid.shape == (0,)
-    nan = np.full(5, np.nan, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")]).astype(dt)
     rec = np.zeros(5, dtype=dt)
     rec["x"] = np.nan
     pts, _, valid = decode_xyz_intensity(make_cloud(dt, rec))
@@ -146,7 +144,6 @@ def test_empty_only_nan_and_single_point() -> None:
     one = np.ones(1, dtype=dt)
     pts, _, valid = decode_xyz_intensity(make_cloud(dt, one))
     assert pts.tolist() == [[1.0, 1.0, 1.0]] and valid.tolist() == [0]
-    del nan
 
 
 def test_float64_overflow_to_float32_is_skipped() -> None:
