@@ -11,3 +11,4 @@ __all__ = ["app", "main"]
 from ros2_mos.cli import train_commands  # noqa: F401
 from ros2_mos.cli import ros_commands  # noqa: F401
 from ros2_mos.cli import sim_commands  # noqa: F401
+from ros2_mos.cli import apps_commands  # noqa: F401
