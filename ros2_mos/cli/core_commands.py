@@ -12,15 +12,15 @@ from ros2_mos.cli.app import app
 
 
 def load_config(config: Optional[Path], model: Optional[Path]):
-    """The pipeline configuration from a YAML file (or defaults), with ``--model`` on top."""
-    import dataclasses
+    """The pipeline configuration of the node's params file (or the defaults), with ``--model`` on top.
 
-    from ros2_mos.config import MosConfig
+    One file format for the node and the offline tools, so that offline results are
+    those the node gives with the same file.
+    """
+    from ros2_mos.ros.params import load_params_file, mos_config, replace_model
 
-    cfg = MosConfig.from_yaml(config) if config else MosConfig()
-    if model is not None:
-        cfg = dataclasses.replace(cfg, model=str(model))
-    return cfg
+    values = load_params_file(config) if config else {}
+    return mos_config(replace_model(values, None if model is None else str(model)))
 
 
 @app.command()
@@ -28,7 +28,7 @@ def infer(
     sequence_dir: Path = typer.Argument(..., help="SemanticKITTI sequence folder (needs only velodyne/*.bin) or a dataset root"),
     out: Path = typer.Option(..., "--out", help="Output root: writes sequences/XX/predictions/*.label"),
     model: Optional[Path] = typer.Option(None, help="ONNX model exported by `ros2-mos export` (default: the shipped model)"),
-    config: Optional[Path] = typer.Option(None, help="Pipeline YAML (see config/mos.yaml, the `mos_node` section)"),
+    config: Optional[Path] = typer.Option(None, help="The node's ROS params file (config/mos.yaml); default: built-in defaults"),
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences of a dataset root"),
     use_poses: bool = typer.Option(False, "--use-poses", help="Use the dataset's poses.txt instead of KISS-ICP"),
 ) -> None:
