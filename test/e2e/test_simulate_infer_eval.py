@@ -1,0 +1,81 @@
+"""simulate -> infer -> eval through the real CLI, and KISS-ICP odometry against ground truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from conftest import make_threshold_model
+from ros2_mos.cli import app
+from ros2_mos.config import MosConfig, sensor_preset
+from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_label
+from ros2_mos.evaluation import predict_sequence
+from ros2_mos.pipeline import MosPipeline
+
+runner = CliRunner()
+N_SCANS = 25
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("sim")
+    result = runner.invoke(app, ["simulate", str(root), "--sequences", "00", "--scans", str(N_SCANS), "--preset", "easy",
+                                 "--sensor", "vlp16", "--seed", "3", "--no-bag"])
+    assert result.exit_code == 0, result.output
+    return root
+
+
+@pytest.fixture(scope="module")
+def vlp16_model(tmp_path_factory) -> Path:
+    return make_threshold_model(tmp_path_factory.mktemp("m") / "vlp16.onnx", sensor_preset("vlp16"), n_past=2)
+
+
+def test_infer_writes_one_label_per_point_and_eval_scores_it(dataset, vlp16_model, tmp_path):
+    pred = tmp_path / "pred"
+    result = runner.invoke(app, ["infer", str(dataset / "sequences" / "00"), "--model", str(vlp16_model), "--out", str(pred)])
+    assert result.exit_code == 0, result.output
+    seq = SemanticKittiSequence(dataset / "sequences" / "00")
+    files = sorted((pred / "sequences" / "00" / "predictions").glob("*.label"))
+    assert len(files) == N_SCANS
+    for i, f in enumerate(files):
+        labels = read_label(f, len(seq[i].points))
+        assert set(np.unique(labels)) <= {9, 251}
+    result = runner.invoke(app, ["eval", str(pred), str(dataset)])
+    assert result.exit_code == 0, result.output
+    assert "all" in result.output and "IoU" in result.output
+
+
+def test_pipeline_odometry_stays_close_to_ground_truth(dataset, vlp16_model):
+    seq = SemanticKittiSequence(dataset / "sequences" / "00")
+    pipe = MosPipeline(MosConfig(model=str(vlp16_model)))
+    estimated = np.array([p.result.pose for p in predict_sequence(pipe, seq)])
+    gt = seq.poses[: len(estimated)]
+    # Both trajectories start at their first pose: compare motion relative to it.
+    rel_est = np.linalg.inv(estimated[0]) @ estimated
+    rel_gt = np.linalg.inv(gt[0]) @ gt
+    travelled = np.linalg.norm(rel_gt[-1][:3, 3])
+    error = np.linalg.norm(rel_est[:, :3, 3] - rel_gt[:, :3, 3], axis=1).max()
+    assert error < 0.05 * travelled + 0.3, f"max position error {error:.2f} m over {travelled:.1f} m"
+
+
+def test_eval_of_missing_predictions_is_a_clear_error(dataset, tmp_path):
+    result = runner.invoke(app, ["eval", str(tmp_path), str(dataset)])
+    assert result.exit_code != 0
+
+
+def test_console_script_turns_library_errors_into_one_line_messages(tmp_path, vlp16_model):
+    import subprocess
+    import sys
+
+    script = Path(sys.executable).parent / "ros2-mos"
+    proc = subprocess.run([str(script), "infer", str(tmp_path / "nothing"), "--model", str(vlp16_model),
+                           "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1
+    assert "error:" in proc.stderr and "velodyne" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    proc = subprocess.run([str(script), "infer", str(tmp_path), "--model", str(tmp_path / "missing.onnx"),
+                           "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and "model file not found" in proc.stderr
