@@ -12,3 +12,4 @@ from ros2_mos.cli import train_commands  # noqa: F401
 from ros2_mos.cli import ros_commands  # noqa: F401
 from ros2_mos.cli import sim_commands  # noqa: F401
 from ros2_mos.cli import apps_commands  # noqa: F401
+from ros2_mos.cli import demo_command  # noqa: F401
