@@ -34,6 +34,8 @@ class Replayer:
         self.publisher = self.node.create_publisher(self.types.point_cloud2, topic, qos)
         self.synced = 0
         self.last_diagnostics = ""
+        self.last_diagnostic_values: dict[str, str] = {}
+        self.published_stamps: list[int] = []  # header stamps as published, in bag order
         self._cond = threading.Condition()
         if sync_topic:
             self.node.create_subscription(self.types.point_cloud2, sync_topic, self._on_sync,
@@ -54,6 +56,7 @@ class Replayer:
         for status in msg.status:
             if status.name.startswith("mos_node"):
                 values = {kv.key: kv.value for kv in status.values}
+                self.last_diagnostic_values = values
                 stages = ", ".join(f"{k[:-8]} {v}" for k, v in values.items() if k.endswith("_ms_mean"))
                 self.last_diagnostics = (f"{values.get('rate_hz', '?')} Hz, {values.get('processed', '?')} processed, "
                                          f"{values.get('dropped', '?')} dropped, {values.get('skipped', '?')} skipped;"
@@ -69,8 +72,12 @@ class Replayer:
         return True
 
     def play(self, bag: str | Path, bag_topic: str, *, rate: float = 1.0, loop: bool = False,
-             sync_timeout: float = 5.0, max_messages: int = 0) -> int:
-        """Publish the clouds of ``bag_topic``; returns how many were published."""
+             sync_timeout: float = 5.0, max_messages: int = 0, restamp: bool = False) -> int:
+        """Publish the clouds of ``bag_topic``; returns how many were published.
+
+        ``restamp`` gives each cloud the wall-clock time of its publication, as a live driver
+        would, so that subscribers can measure stamp-to-output latency.
+        """
         sent = 0
         while True:
             start_wall: float | None = None
@@ -83,7 +90,11 @@ class Replayer:
                     if delay > 0:
                         time.sleep(delay)
                 before = self.synced
-                self.publisher.publish(m.copy_cloud(self.types, msg))
+                cloud = m.copy_cloud(self.types, msg)
+                if restamp:
+                    cloud.header.stamp = self.node.get_clock().now().to_msg()
+                self.published_stamps.append(m.stamp_ns(cloud.header.stamp))
+                self.publisher.publish(cloud)
                 sent += 1
                 if self._sync:
                     with self._cond:
