@@ -139,8 +139,17 @@ class MosPipeline:
         watch.lap("validate")
 
         if pose is None:
-            pose = self.odometry.estimate(xyz)
+            pose = np.asarray(self.odometry.estimate(xyz), dtype=np.float64)
+            if not np.isfinite(pose).all():
+                # A diverged ICP: its state is poisoned, so start a new odometry sequence at this scan.
+                warnings.append("odometry returned a non-finite pose: odometry and buffer reset")
+                self.reset()
+                pose = np.asarray(self.odometry.estimate(xyz), dtype=np.float64)
+                if not np.isfinite(pose).all():
+                    raise ScanError("odometry returned a non-finite pose for this scan even after a reset")
         pose = np.asarray(pose, dtype=np.float64)
+        if not np.isfinite(pose).all():
+            raise ScanError("the given pose is not finite")
         if self._last_pose is not None:
             jump = float(np.linalg.norm(relative_pose(self._last_pose, pose)[:3, 3]))
             if jump > self.config.odometry.max_translation_jump:

@@ -137,3 +137,45 @@ def test_static_map_update_keeps_tracking(tiny_model_path):
     pipe = MosPipeline(MosConfig(model=str(tiny_model_path), odometry=OdometryConfig(map_update="static")))
     poses = [pipe.process(p, r, 0.1 * i).pose for i, (p, r, _, _) in enumerate(street_sequence(6))]
     np.testing.assert_allclose(poses[-1][:3, 3] - poses[0][:3, 3], [5.0, 0, 0], atol=0.15)
+
+
+def test_non_finite_odometry_pose_resets_and_flags_degraded(pipeline):
+    """A diverged ICP (NaN pose) must not reach the outputs or the buffer: reset, restart, degraded."""
+    seq = street_sequence(5)
+    for i in range(3):
+        assert pipeline.process(seq[i][0], seq[i][1], 0.1 * i).residuals_complete == (i >= 2)
+    real = pipeline.odometry.estimate
+    calls = []
+
+    def diverged(points, *args, **kwargs):
+        calls.append(len(points))
+        pipeline.odometry.estimate = real  # only this call diverges; the restart after the reset works
+        real(points, *args, **kwargs)
+        return np.full((4, 4), np.nan)
+
+    pipeline.odometry.estimate = diverged
+    res = pipeline.process(seq[3][0], seq[3][1], 0.3)
+    assert calls, "the failing odometry was not called"
+    assert any("non-finite pose" in w for w in res.warnings)
+    assert np.isfinite(res.pose).all() and np.isfinite(res.probability).all()
+    assert res.degraded and res.n_past_available == 0 and not res.residuals.any()
+    np.testing.assert_allclose(res.pose, np.eye(4), atol=1e-9)  # a new odometry sequence starts here
+    nxt = pipeline.process(seq[4][0], seq[4][1], 0.4)
+    assert np.isfinite(nxt.pose).all() and not nxt.warnings and nxt.n_past_available == 1
+    np.testing.assert_allclose(nxt.pose[:3, 3], [1.0, 0.0, 0.0], atol=0.15)
+
+
+def test_odometry_that_stays_non_finite_skips_the_scan(pipeline):
+    pts, rem, _, _ = street_sequence(1)[0]
+    pipeline.odometry.estimate = lambda points, *a, **k: np.full((4, 4), np.inf)
+    with pytest.raises(ScanError, match="non-finite pose"):
+        pipeline.process(pts, rem, 0.0)
+    assert len(pipeline.buffer) == 0
+
+
+def test_non_finite_given_pose_is_a_scan_error(pipeline):
+    pts, rem, _, pose = street_sequence(1)[0]
+    bad = pose.copy()
+    bad[1, 3] = np.nan
+    with pytest.raises(ScanError, match="not finite"):
+        pipeline.process(pts, rem, 0.0, pose=bad)
