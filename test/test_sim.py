@@ -18,6 +18,7 @@ from ros2_mos.sim.motion import Stop, simulate_profile
 from ros2_mos.sim.presets import SensorEffects
 from ros2_mos.sim.raycast import SoupScene, cast_nearest
 from ros2_mos.sim.road import Path as RoutePath
+from ros2_mos.sim.terrain import Terrain
 
 SMALL = SensorConfig("small", 32, 512, 10.0, -25.0, 0.0, 120.0)
 NO_NOISE = SensorEffects(range_sigma=0.0, dropout=0.0, grazing_dropout=0.0, far_dropout=0.0, remission_sigma=0.0,
@@ -45,7 +46,8 @@ def test_ray_cast_hits_a_box_and_a_plane_at_the_analytic_distance() -> None:
 def test_noise_free_lidar_sees_the_ground_at_the_sensor_height() -> None:
     ground = TriangleSoup.labelled(quad(-500, -500, 500, 500, 0.0), 40)
     lidar = Lidar(SMALL, NO_NOISE)
-    scan = lidar.scan([SoupScene(ground, np.zeros(3))], 0.0, 0.0, 0.3, np.random.default_rng(0))
+    pose = Terrain.flat().vehicle_pose(np.array([3.0]), np.array([-2.0]), np.array([0.3]), NO_NOISE.sensor_height)[0]
+    scan = lidar.scan([SoupScene(ground, np.zeros(3))], pose, np.random.default_rng(0))
     down = beam_elevations(SMALL) < np.radians(-0.6)  # beams that meet the ground within 120 m
     assert len(scan.points) == down.sum() * SMALL.width
     assert np.allclose(scan.points[:, 2], -NO_NOISE.sensor_height, atol=1e-4)
@@ -125,10 +127,13 @@ def test_poses_chain_with_the_ego_motion(written: tuple[Path, object]) -> None:
     assert np.allclose(poses[0], np.eye(4), atol=1e-9)
     sim = SequenceSimulator(25, "benchmark", seed=11, sensor=SMALL, name="00")
     steps = np.linalg.inv(poses[:-1]) @ poses[1:]
-    moved = np.linalg.norm(steps[:, :3, 3], axis=1)
+    moved = np.linalg.norm(steps[:, :2, 3], axis=1)
     ego = np.hypot(np.diff(sim.traffic.ego_x[1:]), np.diff(sim.traffic.ego_y[1:]))
-    assert np.allclose(moved, ego, atol=1e-6)
-    assert np.allclose(steps[:, 2, 3], 0.0, atol=1e-9)  # flat ground
+    # the sensor's planar step is the ego's, up to the body's pitch and roll; standing is exactly still
+    assert np.allclose(moved, ego, atol=0.02 + 0.02 * ego.max())
+    assert (moved[ego == 0] == 0).all()
+    assert np.abs(steps[:, 2, 3]).max() < 0.02 + 0.05 * ego.max()  # gentle slopes only
+    assert np.allclose(poses[:, :3, :3] @ poses[:, :3, :3].transpose(0, 2, 1), np.eye(3), atol=1e-9)
     for k in (5, 24):
         assert np.allclose(poses[k], np.linalg.inv(sim.world_pose(0)) @ sim.world_pose(k), atol=1e-6)
 
@@ -177,7 +182,7 @@ def test_presets_differ_in_how_much_moves() -> None:
 
     jam = np.mean([moving_fraction("traffic_jam", s) for s in (1, 2)])
     bench = np.mean([moving_fraction("benchmark", s) for s in (1, 2)])
-    assert jam > 0.08 and jam > 2 * bench
+    assert jam > 0.1 and jam > 1.5 * bench
 
 
 def test_parked_cars_are_static_and_at_least_as_many_as_moving_ones(written: tuple[Path, object]) -> None:

@@ -63,13 +63,10 @@ class Lidar:
         self.min_range = max(sensor.min_range, effects.ego_clearance)
         el = beam_elevations(sensor)
         az = column_azimuths(sensor)
-        self._cos_el = np.repeat(np.cos(el), sensor.width)
-        self._sin_el = np.repeat(np.sin(el), sensor.width)
-        self._az = np.tile(az, sensor.height)
+        cos_el, sin_el = np.repeat(np.cos(el), sensor.width), np.repeat(np.sin(el), sensor.width)
+        az_all = np.tile(az, sensor.height)
         self._col = np.tile(np.arange(sensor.width), sensor.height)
-        self.dirs_sensor = np.column_stack(
-            [self._cos_el * np.cos(self._az), self._cos_el * np.sin(self._az), self._sin_el]
-        )
+        self.dirs_sensor = np.column_stack([cos_el * np.cos(az_all), cos_el * np.sin(az_all), sin_el])
         # Firing time of each column relative to the scan's stamp (mid-sweep), in sweeps.
         self.column_phase = (np.arange(sensor.width) + 0.5) / sensor.width - 0.5
 
@@ -77,20 +74,16 @@ class Lidar:
     def n_rays(self) -> int:
         return len(self.dirs_sensor)
 
-    def scan(self, scenes: list[SoupScene], x: np.ndarray | float, y: np.ndarray | float,
-             yaw: np.ndarray | float, rng: np.random.Generator) -> LidarScan:
-        """Cast one sweep from ground pose(s) (x, y, yaw): scalars, or one per column (intra-sweep motion)."""
+    def scan(self, scenes: list[SoupScene], poses: np.ndarray, rng: np.random.Generator) -> LidarScan:
+        """Cast one sweep from the sensor pose (4, 4), or one pose per column (W, 4, 4) for intra-sweep motion."""
         eff = self.effects
-        x, y, yaw = (np.asarray(v, float) for v in (x, y, yaw))
-        per_column = yaw.ndim > 0
-        if per_column:
-            x, y, yaw = x[self._col], y[self._col], yaw[self._col]
-        az = self._az + yaw
-        dirs = np.column_stack([self._cos_el * np.cos(az), self._cos_el * np.sin(az), self._sin_el])
-        if per_column:
-            origins = np.column_stack([x, y, np.full(len(x), eff.sensor_height)])
+        poses = np.asarray(poses, float)
+        if poses.ndim == 3:
+            rot, origins = poses[self._col, :3, :3], poses[self._col, :3, 3]
+            dirs = np.einsum("nij,nj->ni", rot, self.dirs_sensor)
         else:
-            origins = np.array([float(x), float(y), eff.sensor_height])
+            origins = poses[:3, 3]
+            dirs = self.dirs_sensor @ poses[:3, :3].T
         hits = cast_nearest(scenes, origins, dirs)
 
         soups = [s.soup for s in scenes]

@@ -54,6 +54,12 @@ class StreetConfig:
         _check_prob("straight_prob", self.straight_prob)
         if min(self.lane_width, self.sidewalk_width, self.turn_radius) <= 0:
             raise ConfigError("lane_width, sidewalk_width and turn_radius must be positive")
+        # Every lane and the sidewalks are offsets of a route: the inner one must not fold in a corner.
+        if self.turn_radius <= self.half_road_width + self.sidewalk_width:
+            raise ConfigError(
+                f"turn_radius ({self.turn_radius}) must exceed the half street width with sidewalk "
+                f"({self.half_road_width + self.sidewalk_width})"
+            )
 
     @property
     def half_road_width(self) -> float:
@@ -100,12 +106,16 @@ class SceneConfig:
     pole_spacing: Range = (22.0, 40.0)
     bush_prob: float = 0.3
     parked_prob: float = 0.5
+    # RMS height (m) of the ground's long undulations; 0 gives a flat world.
+    ground_rms: float = 0.12
 
     def __post_init__(self) -> None:
         for name in ("building_width", "building_depth", "building_height", "setback", "tree_spacing", "pole_spacing"):
             _check_range(name, getattr(self, name))
         for name in ("empty_lot_prob", "tree_prob", "bush_prob", "parked_prob"):
             _check_prob(name, getattr(self, name))
+        if self.ground_rms < 0:
+            raise ConfigError(f"ground_rms must be >= 0, got {self.ground_rms}")
         if self.building_width[0] <= 0 or self.tree_spacing[0] <= 0 or self.pole_spacing[0] <= 0:
             raise ConfigError("building widths and tree/pole spacings must be positive")
 
@@ -121,6 +131,8 @@ class EgoConfig:
     start_stopped_prob: float = 0.3
     accel: float = 1.5
     decel: float = 2.5
+    # RMS of the body's pitch/roll vibration on its springs (deg); it also dips when braking.
+    body_vibration_deg: float = 0.1
 
     def __post_init__(self) -> None:
         _check_range("ego speed", self.speed, 0.1)
@@ -240,7 +252,7 @@ SIM_PRESETS: dict[str, SimPreset] = {
     "benchmark": SimPreset("benchmark"),
     "traffic_jam": SimPreset(
         "traffic_jam",
-        street=StreetConfig(lanes_per_direction=2, block_size=(60.0, 120.0)),
+        street=StreetConfig(lanes_per_direction=2, block_size=(60.0, 120.0), turn_radius=15.0),
         ego=EgoConfig(speed=(2.0, 6.0), stop_prob=0.6, stop_duration=(2.0, 6.0), start_stopped_prob=0.7),
         traffic=TrafficConfig(
             lead_cars=(2, 3), follow_cars=(2, 3), headway=(1.0, 1.6), gap=(1.5, 3.0),

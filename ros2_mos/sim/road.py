@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from ros2_mos.errors import ConfigError
 from ros2_mos.sim.presets import StreetConfig
 
 # Headings of the four grid directions (east, north, west, south) as (dx, dy) index steps.
@@ -55,15 +56,14 @@ class Path:
     so a lateral offset moves continuously even through a corner.  Arc lengths
     outside [0, length] are clamped: an agent at either end stands still.
     ``nodes_s`` holds the arc lengths of the intersections passed (corner middles),
-    ``turns_s`` those of the corners only, ``radius`` the corners' radius.
+    ``turn_spans`` the (start, end) arc lengths of each corner.
     """
 
     s: np.ndarray
     xy: np.ndarray
     yaw: np.ndarray
     nodes_s: np.ndarray
-    turns_s: np.ndarray
-    radius: float
+    turn_spans: np.ndarray  # (K, 2)
 
     @property
     def length(self) -> float:
@@ -81,8 +81,7 @@ class Path:
 
     def speed_limit(self, turn_speed: float, decel: float) -> Callable[[float], float]:
         """A driver's limit at arc length s: ``turn_speed`` in corners, braking in time before them."""
-        half = 0.25 * np.pi * self.radius
-        starts, ends = self.turns_s - half, self.turns_s + half
+        starts, ends = self.turn_spans[:, 0], self.turn_spans[:, 1]
 
         def limit(s: float) -> float:
             k = int(np.searchsorted(ends, s))
@@ -93,6 +92,21 @@ class Path:
 
         return limit
 
+    def offset(self, lateral: float) -> "Path":
+        """The parallel path ``lateral`` metres to the left, with its own arc length.
+
+        Agents on a lane or sidewalk move along their own curve, so their speed is
+        their true speed also in corners (the inner side of a turn is shorter).
+        """
+        if lateral == 0.0:
+            return self
+        xy = self.xy + lateral * np.column_stack([-np.sin(self.yaw), np.cos(self.yaw)])
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+        if (np.diff(s) <= 0).any():
+            raise ConfigError(f"offset {lateral} m folds the path in a corner: use a larger turn_radius")
+        return Path(s, xy, self.yaw.copy(), np.interp(self.nodes_s, self.s, s),
+                    np.interp(self.turn_spans, self.s, s))
+
     @classmethod
     def from_nodes(cls, points: np.ndarray, radius: float, arc_steps: int = 12) -> "Path":
         """A path through grid ``points`` (K, 2), every 90-degree corner rounded with ``radius``."""
@@ -101,7 +115,7 @@ class Path:
         verts: list[np.ndarray] = [pts[0]]
         yaws: list[float] = [float(np.arctan2(first[1], first[0]))]
         node_vertex: list[int] = []
-        turn_vertex: list[int] = []
+        turn_vertex: list[tuple[int, int]] = []
         for k in range(1, len(pts) - 1):
             a = (pts[k] - pts[k - 1]) / np.linalg.norm(pts[k] - pts[k - 1])
             b = (pts[k + 1] - pts[k]) / np.linalg.norm(pts[k + 1] - pts[k])
@@ -120,14 +134,14 @@ class Path:
             verts.extend(center + radius * np.stack([np.cos(phis), np.sin(phis)], axis=1))
             yaws.extend(phis + turn * np.pi / 2)
             node_vertex.append(len(verts) - 1 - arc_steps // 2)
-            turn_vertex.append(node_vertex[-1])
+            turn_vertex.append((len(verts) - 1 - arc_steps, len(verts) - 1))
         last = pts[-1] - pts[-2]
         verts.append(pts[-1])
         yaws.append(float(np.arctan2(last[1], last[0])))
         xy = np.asarray(verts)
         s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
         return cls(s, xy, np.unwrap(np.asarray(yaws)), s[np.asarray(node_vertex, int)],
-                   s[np.asarray(turn_vertex, int)], float(radius))
+                   s[np.asarray(turn_vertex, int).reshape(-1, 2)])
 
 
 def random_route(rng: np.random.Generator, grid: StreetGrid, street: StreetConfig, min_length: float,

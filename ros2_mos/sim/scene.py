@@ -13,9 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ros2_mos.sim import objects as ob
-from ros2_mos.sim.geometry import TriangleSoup, boxes, octahedron, place, prism, quad
+from ros2_mos.sim.geometry import TriangleSoup, boxes, octahedron, place, prism
 from ros2_mos.sim.presets import SceneConfig, StreetConfig
 from ros2_mos.sim.road import StreetGrid
+from ros2_mos.sim.terrain import Terrain, curb_strip, height_grid
 
 # Keep street furniture this far from a sidewalk's corners, so that people
 # walking round a corner and cars turning never meet a pole or a trunk.
@@ -23,6 +24,26 @@ _CORNER_CLEARANCE = 4.0
 # Parked cars keep this far from the curb's corner (out of the intersection).
 _PARKING_CLEARANCE = 5.0
 _SLOT_LENGTH = 6.0
+# Ground mesh resolution (m): fine enough for the terrain's long waves, coarse enough to stay cheap.
+_ROAD_SPACING, _TERRAIN_SPACING = 4.0, 6.0
+
+
+@dataclass(frozen=True)
+class Ground:
+    """The walkable surface: terrain height, raised by the curb inside a block's sidewalk ring."""
+
+    terrain: Terrain
+    grid: StreetGrid
+    street: StreetConfig
+
+    def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Surface height under (x, y): road level, or curb height above it off the road."""
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        xs, ys, hr = self.grid.xs, self.grid.ys, self.street.half_road_width
+        i = np.clip(np.searchsorted(xs, x) - 1, 0, len(xs) - 2)
+        j = np.clip(np.searchsorted(ys, y) - 1, 0, len(ys) - 2)
+        off_road = (x - xs[i] > hr) & (xs[i + 1] - x > hr) & (y - ys[j] > hr) & (ys[j + 1] - y > hr)
+        return self.terrain.height(x, y) + np.where(off_road, self.street.curb_height, 0.0)
 
 
 @dataclass
@@ -76,8 +97,9 @@ def _sides(x0: float, y0: float, x1: float, y1: float) -> list[tuple[np.ndarray,
 class _Builder:
     """Collects labelled pieces of one sequence's static scene."""
 
-    def __init__(self, rng: np.random.Generator, street: StreetConfig, scene: SceneConfig, first_instance: int):
-        self.rng, self.street, self.scene = rng, street, scene
+    def __init__(self, rng: np.random.Generator, street: StreetConfig, scene: SceneConfig, terrain: Terrain,
+                 first_instance: int):
+        self.rng, self.street, self.scene, self.terrain = rng, street, scene, terrain
         self.parts: list[TriangleSoup] = []
         self.parked_ids: list[int] = []
         self.parked_xy: list[np.ndarray] = []
@@ -92,16 +114,16 @@ class _Builder:
     def block(self, x0: float, y0: float, x1: float, y1: float) -> None:
         st, rng = self.street, self.rng
         hr, sw, ch = st.half_road_width, st.sidewalk_width, st.curb_height
-        self.add(quad(x0, y0, x1, y1, 0.0), ob.ROAD, rng.uniform(0.08, 0.2))
+        tr = self.terrain
+        self.add(height_grid(tr, x0, y0, x1, y1, _ROAD_SPACING), ob.ROAD, rng.uniform(0.08, 0.2))
         ox0, oy0, ox1, oy1 = x0 + hr, y0 + hr, x1 - hr, y1 - hr  # curb
         ix0, iy0, ix1, iy1 = ox0 + sw, oy0 + sw, ox1 - sw, oy1 - sw  # back of the sidewalk
-        strips = np.array([
-            [ox0, oy0, ox1, iy0], [ox0, iy1, ox1, oy1], [ox0, iy0, ix0, iy1], [ix1, iy0, ox1, iy1],
-        ])
-        sizes = np.column_stack([strips[:, 2] - strips[:, 0], strips[:, 3] - strips[:, 1], np.full(4, ch)])
-        centers = np.column_stack([(strips[:, 0] + strips[:, 2]) / 2, (strips[:, 1] + strips[:, 3]) / 2, np.full(4, ch / 2)])
-        self.add(boxes(sizes, centers), ob.SIDEWALK, rng.uniform(0.25, 0.4))
-        self.add(quad(ix0, iy0, ix1, iy1, ch), ob.TERRAIN, rng.uniform(0.35, 0.55))
+        strips = [(ox0, oy0, ox1, iy0), (ox0, iy1, ox1, oy1), (ox0, iy0, ix0, iy1), (ix1, iy0, ox1, iy1)]
+        walk = [height_grid(tr, *rect, _ROAD_SPACING, dz=ch) for rect in strips]
+        corners = [np.array(c) for c in ((ox0, oy0), (ox1, oy0), (ox1, oy1), (ox0, oy1))]
+        walk += [curb_strip(tr, corners[k], corners[(k + 1) % 4], _ROAD_SPACING, -0.05, ch) for k in range(4)]
+        self.add(np.concatenate(walk), ob.SIDEWALK, rng.uniform(0.25, 0.4))
+        self.add(height_grid(tr, ix0, iy0, ix1, iy1, _TERRAIN_SPACING, dz=ch), ob.TERRAIN, rng.uniform(0.35, 0.55))
         for start, direction, length in _sides(ix0, iy0, ix1, iy1):
             self._frontage(start, direction, length, depth_limit=0.5 * min(ix1 - ix0, iy1 - iy0))
         for start, direction, length in _sides(ox0, oy0, ox1, oy1):
@@ -109,7 +131,7 @@ class _Builder:
 
     def _frontage(self, start: np.ndarray, direction: np.ndarray, length: float, depth_limit: float) -> None:
         """Buildings (and hedges in front gardens) along one side of a block's interior."""
-        sc, rng = self.scene, self.rng
+        sc, rng, ch = self.scene, self.rng, self.street.curb_height
         inward = np.array([-direction[1], direction[0]])
         u = 0.0
         sizes, centers, rems = [], [], []
@@ -125,16 +147,19 @@ class _Builder:
                 size_along = max(width - gap, 2.0)
                 size = (abs(direction[0]) * size_along + abs(inward[0]) * depth,
                         abs(direction[1]) * size_along + abs(inward[1]) * depth, height)
-                sizes.append(size)
-                centers.append((mid[0], mid[1], height / 2))
+                base = float(self.terrain.height(mid[0], mid[1])) - 1.0  # foundations reach below the ground
+                top = base + 1.0 + self.street.curb_height + height
+                sizes.append((size[0], size[1], top - base))
+                centers.append((mid[0], mid[1], (top + base) / 2))
                 rems.append(rng.uniform(0.15, 0.6))
                 if setback > 1.5 and rng.random() < sc.bush_prob:
                     h = rng.uniform(0.6, 1.6)
                     hm = start + direction * (u + width / 2) + inward * (setback / 2)
                     d = min(0.8, setback - 0.4)
+                    ground = float(self.terrain.height(hm[0], hm[1])) + ch
                     hedge_sizes.append((abs(direction[0]) * width * 0.8 + abs(inward[0]) * d,
-                                        abs(direction[1]) * width * 0.8 + abs(inward[1]) * d, h))
-                    hedge_centers.append((hm[0], hm[1], h / 2))
+                                        abs(direction[1]) * width * 0.8 + abs(inward[1]) * d, h + 0.4))
+                    hedge_centers.append((hm[0], hm[1], ground + h / 2 - 0.2))  # 0.4 m sunk into the ground
             u += width
         if sizes:
             tris = boxes(np.array(sizes), np.array(centers))
@@ -153,16 +178,19 @@ class _Builder:
             xy = start + np.outer(tree_u, direction) + inward * 0.6
             for x, y in xy:  # a handful per side; each tree has its own size
                 trunk_h = rng.uniform(2.0, 3.5)
-                self.add(place(prism(rng.uniform(0.12, 0.2), 0.0, trunk_h), x, y, rng.uniform(0, np.pi), ch),
+                z = float(self.terrain.height(x, y)) + ch
+                self.add(place(prism(rng.uniform(0.12, 0.2), -0.2, trunk_h), x, y, rng.uniform(0, np.pi), z),
                          ob.TRUNK, rng.uniform(0.3, 0.45))
                 rz = rng.uniform(1.2, 2.5)
                 crown = octahedron(rng.uniform(1.5, 3.0), rz, trunk_h + 0.7 * rz)
-                self.add(place(crown, x, y, rng.uniform(0, np.pi), ch), ob.VEGETATION, rng.uniform(0.4, 0.65))
+                self.add(place(crown, x, y, rng.uniform(0, np.pi), z), ob.VEGETATION, rng.uniform(0.4, 0.65))
         pole_u = _along(rng, length, sc.pole_spacing, _CORNER_CLEARANCE)
         if len(pole_u):
             xy = start + np.outer(pole_u, direction) + inward * 0.3
             heights = rng.uniform(4.5, 8.0, len(pole_u))
-            tris = np.concatenate([place(prism(0.1, 0.0, h), x, y, 0.0, ch)[0] for (x, y), h in zip(xy, heights)])
+            base = self.terrain.height(xy[:, 0], xy[:, 1]) + ch
+            tris = np.concatenate([place(prism(0.1, -0.2, h), x, y, 0.0, z)[0]
+                                   for (x, y), h, z in zip(xy, heights, base)])
             self.add(tris, ob.POLE, rng.uniform(0.4, 0.6))
         self._parking(start, direction, length, -inward)
 
@@ -182,15 +210,16 @@ class _Builder:
             yaw = heading + (np.pi if rng.random() < 0.3 else 0.0) + rng.normal(0.0, 0.03)
             inst = self.next_instance
             self.next_instance += 1
-            self.add(place(tris, xy[0], xy[1], yaw)[0], ob.CAR, rem, inst)
+            self.add(place(tris, xy[0], xy[1], yaw, self.terrain.height(xy[0], xy[1]))[0], ob.CAR, rem, inst)
             self.parked_ids.append(inst)
             self.parked_xy.append(xy)
 
 
 def build_static_scene(rng: np.random.Generator, grid: StreetGrid, street: StreetConfig, scene: SceneConfig,
-                       route_points: np.ndarray, reach: float, first_instance: int = 1) -> StaticScene:
+                       terrain: Terrain, route_points: np.ndarray, reach: float,
+                       first_instance: int = 1) -> StaticScene:
     """Every block within ``reach`` of ``route_points``; parked cars get instance ids from ``first_instance``."""
-    builder = _Builder(rng, street, scene, first_instance)
+    builder = _Builder(rng, street, scene, terrain, first_instance)
     for i, j in blocks_near(grid, route_points, reach):
         builder.block(grid.xs[i], grid.ys[j], grid.xs[i + 1], grid.ys[j + 1])
     return StaticScene(

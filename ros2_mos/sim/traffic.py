@@ -24,7 +24,8 @@ from ros2_mos.sim import objects as ob
 from ros2_mos.sim.geometry import TriangleSoup, place
 from ros2_mos.sim.motion import SpeedProfile, Stop, random_stops, simulate_profile
 from ros2_mos.sim.presets import SimPreset
-from ros2_mos.sim.road import Path, StreetGrid, random_route
+from ros2_mos.sim.road import Path, random_route
+from ros2_mos.sim.scene import Ground
 
 EPS_MOVE = 1e-3
 EPS_YAW = 1e-4
@@ -36,13 +37,15 @@ _MAX_COLUMN = 400
 
 @dataclass
 class Ego:
-    """The ego vehicle: a lane of the route driven with a speed profile; s = s_start + profile(t).
+    """The ego vehicle: its lane of the route driven with a speed profile; s = s_start + profile(t).
 
-    ``s_start`` is where it was when its profile began, before the first scan.
+    ``route`` is the street centre line the other participants' lanes are offsets of,
+    ``path`` the ego lane (its own arc length); ``s_start`` is where the ego vehicle
+    was on it when its profile began, before the first scan.
     """
 
+    route: Path
     path: Path
-    lateral: float
     s_start: float
     profile: SpeedProfile
 
@@ -51,7 +54,11 @@ class Ego:
 
     def pose_at(self, t: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Ground pose (x, y, yaw) of the ego vehicle at times ``t``."""
-        return self.path.pose(self.s_at(t), self.lateral)
+        return self.path.pose(self.s_at(t))
+
+    def route_s_at(self, t: np.ndarray | float) -> np.ndarray:
+        """Where the ego vehicle is at times ``t``, as arc length of the centre line."""
+        return np.interp(self.s_at(t), self.path.s, self.route.s)
 
 
 @dataclass
@@ -66,6 +73,7 @@ class Agent:
     y: np.ndarray
     yaw: np.ndarray
     role: str = ""
+    z: np.ndarray | None = None  # ground height under the agent; None: 0
 
     @property
     def step(self) -> np.ndarray:
@@ -88,7 +96,8 @@ class Agent:
     def soup(self, i: int) -> TriangleSoup:
         """Triangles at pose index ``i`` (scan k is i = k + 1), labelled moving or static for that scan."""
         moving = i > 0 and bool(self.moving[i - 1])
-        tris = place(self.tris, self.x[i], self.y[i], self.yaw[i])[0]
+        z = 0.0 if self.z is None else self.z[i]
+        tris = place(self.tris, self.x[i], self.y[i], self.yaw[i], z)[0]
         sem = self.kind.moving_id if moving else self.kind.static_id
         soup = TriangleSoup.labelled(tris, sem, self.inst)
         soup.remission[:] = self.remission
@@ -119,9 +128,10 @@ class Traffic:
 class _TrafficBuilder:
     """Draws candidates and keeps those that are visible and collide with nobody."""
 
-    def __init__(self, rng: np.random.Generator, preset: SimPreset, grid: StreetGrid, ego: Ego,
+    def __init__(self, rng: np.random.Generator, preset: SimPreset, ground: Ground, ego: Ego,
                  times: np.ndarray, reach: float, first_instance: int) -> None:
-        self.rng, self.preset, self.grid, self.ego, self.times, self.reach = rng, preset, grid, ego, times, reach
+        self.rng, self.preset, self.ego, self.times, self.reach = rng, preset, ego, times, reach
+        self.ground, self.grid = ground, ground.grid
         self.next_instance = first_instance
         self.accepted: list[Agent] = []
         ex, ey, eyaw = ego.pose_at(times)
@@ -129,6 +139,7 @@ class _TrafficBuilder:
         ego_agent = Agent(ob.CAR_KIND, 0, np.zeros((0, 3, 3)), np.zeros(0, np.float32), ex, ey, eyaw)
         self._circles: list[tuple[np.ndarray, float]] = [(ego_agent.circles(), ob.CAR_KIND.circle_radius)]
         self.t0, self.t1 = times[0] - _PRE, times[-1] + _POST
+        self._lanes: dict[float, Path] = {}
 
     # -- acceptance -------------------------------------------------------------------
     def visible(self, x: np.ndarray, y: np.ndarray) -> bool:
@@ -154,6 +165,7 @@ class _TrafficBuilder:
         if check_collisions and self.collides(agent):
             return False
         self.next_instance += 1
+        agent.z = self.ground.height(x, y)
         self.accepted.append(agent)
         self._circles.append((agent.circles(), kind.circle_radius))
         return True
@@ -176,16 +188,27 @@ class _TrafficBuilder:
         return simulate_profile(self.t0, self.t1, cruise, stops, speed_limit=speed_limit,
                                 hold_until=hold_until, v0=None if hold_until is None else 0.0)
 
-    def along_ego_path(self, kind: ob.ObjectKind, s_path: np.ndarray, lateral: float, direction: int,
-                       role: str, check_collisions: bool = True) -> bool:
-        x, y, yaw = self.ego.path.pose(s_path, lateral)
+    def lane(self, lateral: float) -> Path:
+        """The ego route's parallel at ``lateral`` (cached)."""
+        key = round(float(lateral), 6)
+        if key not in self._lanes:
+            self._lanes[key] = self.ego.route.offset(key)
+        return self._lanes[key]
+
+    def along_ego_route(self, kind: ob.ObjectKind, s_route: float, travelled: np.ndarray, lateral: float,
+                        direction: int, role: str, check_collisions: bool = True) -> bool:
+        """Offer an agent on the route's parallel at ``lateral``: at centre-line position ``s_route`` when
+        ``travelled`` is 0, moving ``travelled`` metres along its own curve in ``direction``."""
+        lane = self.lane(lateral)
+        s = float(np.interp(s_route, self.ego.route.s, lane.s)) + direction * travelled
+        x, y, yaw = lane.pose(s)
         if direction < 0:
             yaw = yaw + np.pi
         return self.offer(kind, x, y, yaw, role, check_collisions)
 
     def random_ego_s(self) -> float:
-        """The ego route position at a random scan time, where someone should be met."""
-        return float(self.ego.s_at(self.rng.uniform(self.times[0], self.times[-1])))
+        """The ego's centre-line position at a random scan time, where someone should be met."""
+        return float(self.ego.route_s_at(self.rng.uniform(self.times[0], self.times[-1])))
 
     # -- participants -----------------------------------------------------------------
     def ego_lane_queue(self) -> None:
@@ -197,13 +220,14 @@ class _TrafficBuilder:
             dist = np.cumsum(4.9 + self.rng.uniform(*tr.gap, n))
             for k in range(n):
                 s = self.ego.s_at(self.times + sign * shift[k]) + sign * dist[k]
-                self.along_ego_path(ob.CAR_KIND, s, self.ego.lateral, 1, "queue", check_collisions=False)
+                x, y, yaw = self.ego.path.pose(s)
+                self.offer(ob.CAR_KIND, x, y, yaw, "queue", check_collisions=False)
 
     def column(self, lateral: float, direction: int, speed: tuple[float, float], density: float,
-               anchor_s: float, role: str) -> None:
-        """A lane full of cars sharing one stop-and-go profile, kept with probability from ``density``."""
+               anchor_s: float, role: str, stop_and_go: bool) -> None:
+        """A lane full of cars sharing one (stop-and-go) profile, kept with probability from ``density``."""
         tr = self.preset.traffic
-        prof = self.profile(speed, self.rng.random() < tr.stop_and_go_prob, (30.0, 120.0), (2.0, 8.0))
+        prof = self.profile(speed, stop_and_go, (30.0, 120.0), (2.0, 8.0))
         n = _MAX_COLUMN
         headway = self.rng.uniform(*tr.headway, n)
         gaps = 4.9 + self.rng.uniform(*tr.gap, n)
@@ -216,19 +240,21 @@ class _TrafficBuilder:
         base = prof.at(0.0)
         for i in np.nonzero(keep)[0]:
             travelled = prof.at(self.times - shift[i]) - base - dist[i]
-            self.along_ego_path(ob.CAR_KIND, anchor_s + direction * travelled, lateral, direction, role,
-                                check_collisions=False)
+            self.along_ego_route(ob.CAR_KIND, anchor_s, travelled, lateral, direction, role,
+                                 check_collisions=False)
 
     def lanes(self) -> None:
         """The oncoming lanes, and in a traffic jam the lane left of the ego vehicle."""
         tr, st = self.preset.traffic, self.preset.street
-        ego_s0 = float(self.ego.s_at(0.0))
+        ego_s0 = float(self.ego.route_s_at(0.0))
         for lane in range(st.lanes_per_direction):
             self.column(-st.lane_offset(lane), -1, tr.oncoming_speed, tr.oncoming_per_100m,
-                        ego_s0 + self.rng.uniform(-20.0, 20.0), "oncoming")
+                        ego_s0 + self.rng.uniform(-20.0, 20.0), "oncoming", self.rng.random() < tr.stop_and_go_prob)
         if tr.side_column:
+            # It crawls on without stopping: the ego vehicle standing while the next lane moves
+            # is exactly the case where unmasked moving points drag the odometry along.
             self.column(st.lane_offset(st.ego_lane - 1), 1, tr.side_column_speed, 100.0,
-                        ego_s0 + self.rng.uniform(-5.0, 5.0), "side-column")
+                        ego_s0 + self.rng.uniform(-5.0, 5.0), "side-column", False)
 
     def cross_traffic(self) -> None:
         """Cars on their own random routes through nearby streets, some waiting at a junction first."""
@@ -248,7 +274,7 @@ class _TrafficBuilder:
                                     (2.0, 8.0), hold_until=hold if hold > self.t0 else None,
                                     speed_limit=path.speed_limit(self.preset.ego.turn_speed, 2.5))
                 lane = int(self.rng.integers(st.lanes_per_direction))
-                x, y, yaw = path.pose(prof.at(self.times), st.lane_offset(lane))
+                x, y, yaw = path.offset(st.lane_offset(lane)).pose(prof.at(self.times))
                 if self.offer(ob.CAR_KIND, x, y, yaw, "cross"):
                     break
 
@@ -269,15 +295,15 @@ class _TrafficBuilder:
                 else:
                     prof = self.profile(speed, self.rng.random() < tr.stop_and_go_prob, (10.0, 60.0), (2.0, 10.0))
                     travelled = prof.at(self.times) - prof.at(self.rng.uniform(self.times[0], self.times[-1]))
-                if self.along_ego_path(kind, s0 + direction * travelled, lat, direction, role):
+                if self.along_ego_route(kind, s0, travelled, lat, direction, role):
                     break
 
 
-def build_traffic(rng: np.random.Generator, preset: SimPreset, grid: StreetGrid, ego: Ego, times: np.ndarray,
+def build_traffic(rng: np.random.Generator, preset: SimPreset, ground: Ground, ego: Ego, times: np.ndarray,
                   reach: float, first_instance: int) -> Traffic:
-    """Every participant of a sequence; instance ids are given from ``first_instance`` on."""
+    """Every participant of a sequence, standing on ``ground``; instance ids are given from ``first_instance`` on."""
     tr, st = preset.traffic, preset.street
-    b = _TrafficBuilder(rng, preset, grid, ego, times, reach, first_instance)
+    b = _TrafficBuilder(rng, preset, ground, ego, times, reach, first_instance)
     b.ego_lane_queue()
     b.lanes()
     b.cross_traffic()
@@ -291,20 +317,25 @@ def build_traffic(rng: np.random.Generator, preset: SimPreset, grid: StreetGrid,
     return Traffic(ego, times, b.accepted, ex, ey, eyaw)
 
 
-def build_ego(rng: np.random.Generator, preset: SimPreset, path: Path, s_start: float, t_end: float) -> Ego:
-    """The ego vehicle's drive: one cruise speed, slower in corners, stops at some junctions, maybe a standing start."""
+def build_ego(rng: np.random.Generator, preset: SimPreset, route: Path, s_start: float, t_end: float) -> Ego:
+    """The ego vehicle's drive: one cruise speed, slower in corners, stops at some junctions, maybe a standing start.
+
+    ``s_start`` is the centre-line position where its profile begins (``_PRE`` s before the first scan).
+    """
     eg, st = preset.ego, preset.street
+    lane = route.offset(st.lane_offset(st.ego_lane))
+    start = float(np.interp(s_start, route.s, lane.s))
     cruise = float(rng.uniform(*eg.speed))
     stop_line = st.half_road_width + st.sidewalk_width + 2.0
     stops = [
-        Stop(float(s - stop_line - s_start), float(rng.uniform(*eg.stop_duration)))
-        for s in path.nodes_s
-        if s - stop_line > s_start and rng.random() < eg.stop_prob
+        Stop(float(s - stop_line - start), float(rng.uniform(*eg.stop_duration)))
+        for s in lane.nodes_s
+        if s - stop_line > start and rng.random() < eg.stop_prob
     ]
     hold = float(rng.uniform(1.0, 6.0)) if rng.random() < eg.start_stopped_prob else None
-    limit = path.speed_limit(eg.turn_speed, eg.decel)
+    limit = lane.speed_limit(eg.turn_speed, eg.decel)
     profile = simulate_profile(
-        -_PRE, t_end + _POST, cruise, stops, speed_limit=lambda s: limit(s + s_start),
+        -_PRE, t_end + _POST, cruise, stops, speed_limit=lambda s: limit(s + start),
         accel=eg.accel, decel=eg.decel, hold_until=hold, v0=0.0 if hold is not None else None,
     )
-    return Ego(path, st.lane_offset(st.ego_lane), s_start, profile)
+    return Ego(route, lane, start, profile)

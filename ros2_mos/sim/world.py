@@ -20,7 +20,8 @@ from ros2_mos.sim.lidar import Lidar, LidarScan
 from ros2_mos.sim.presets import SimPreset, sim_preset
 from ros2_mos.sim.raycast import SoupScene
 from ros2_mos.sim.road import StreetGrid, random_route
-from ros2_mos.sim.scene import StaticScene, build_static_scene
+from ros2_mos.sim.scene import Ground, StaticScene, build_static_scene
+from ros2_mos.sim.terrain import BodyMotion, Terrain
 from ros2_mos.sim.traffic import Traffic, build_ego, build_traffic
 
 
@@ -32,15 +33,6 @@ class SimScan:
     time: float
     pose: np.ndarray
     scan: LidarScan
-
-
-def pose_matrix(x: float, y: float, z: float, yaw: float) -> np.ndarray:
-    """A 4x4 pose from a position and a heading about z."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    pose = np.eye(4)
-    pose[:2, :2] = [[c, -s], [s, c]]
-    pose[:3, 3] = [x, y, z]
-    return pose
 
 
 def _resolve(preset: str | SimPreset, sensor: str | SensorConfig) -> tuple[SimPreset, SensorConfig]:
@@ -73,6 +65,8 @@ class SequenceSimulator:
         road = 2.0 * (p.street.half_road_width + p.street.sidewalk_width)
         n_lines = int(2.0 * route_length / (p.street.block_size[0] + road)) + 5
         self.grid = StreetGrid.generate(rng, p.street, n_lines)
+        self.terrain = Terrain.random(rng, p.scene.ground_rms)
+        ground = Ground(self.terrain, self.grid, p.street)
         self.route = random_route(rng, self.grid, p.street, route_length)
         ego = build_ego(rng, p, self.route, s_start, float(self.times[-1]))
 
@@ -80,23 +74,29 @@ class SequenceSimulator:
         steps = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(ex), np.diff(ey)))])
         thin = np.unique(np.searchsorted(steps, np.arange(0.0, steps[-1] + 5.0, 5.0)).clip(0, len(ex) - 1))
         self.static: StaticScene = build_static_scene(
-            rng, self.grid, p.street, p.scene, np.column_stack([ex[thin], ey[thin]]), reach + 10.0
+            rng, self.grid, p.street, p.scene, self.terrain, np.column_stack([ex[thin], ey[thin]]), reach + 10.0
         )
-        self.traffic: Traffic = build_traffic(rng, p, self.grid, ego, self.times, reach, self.static.next_instance)
+        self.traffic: Traffic = build_traffic(rng, p, ground, ego, self.times, reach, self.static.next_instance)
         if self.traffic.agents and self.traffic.agents[-1].inst > 0xFFFF:
             raise ConfigError("too many objects for 16-bit instance ids; simulate shorter sequences")
+        self._body = BodyMotion.random(rng, p.ego.body_vibration_deg)
         self._origin = np.array([ex[1], ey[1], 0.0])
         self._static_scene = SoupScene(self.static.soup, self._origin)
-        first = pose_matrix(ex[1], ey[1], p.effects.sensor_height, float(ego.pose_at(0.0)[2]))
-        self._first_inv = np.linalg.inv(first)
+        self._first_inv = np.linalg.inv(self.world_pose(0))
 
     def __len__(self) -> int:
         return self.n_scans
 
     def world_pose(self, k: int) -> np.ndarray:
         """The LiDAR's 4x4 pose at scan k in the world frame of the simulation."""
-        x, y, yaw = self.traffic.ego.pose_at(self.times[k + 1])
-        return pose_matrix(float(x), float(y), self.preset.effects.sensor_height, float(yaw))
+        return self.poses_at(np.array([self.times[k + 1]]))[0]
+
+    def poses_at(self, t: np.ndarray) -> np.ndarray:
+        """The LiDAR's (N, 4, 4) world poses at times ``t``: on the ego lane, pitched and rolled by the ground."""
+        t = np.asarray(t, float)
+        x, y, yaw = self.traffic.ego.pose_at(t)
+        pitch, roll = self._body.at(t, self.traffic.ego.profile)
+        return self.terrain.vehicle_pose(x, y, yaw, self.preset.effects.sensor_height, pitch, roll)
 
     def scan(self, k: int) -> SimScan:
         """Render scan k (0-based)."""
@@ -106,10 +106,10 @@ class SequenceSimulator:
         dynamic = SoupScene(self.traffic.dynamic_soup(k, self.lidar.max_range + 10.0), self._origin)
         rng = np.random.default_rng(self._key + [k])
         if self.preset.effects.intra_sweep_motion:
-            x, y, yaw = self.traffic.ego.pose_at(t + self.lidar.column_phase * self.preset.scan_period)
+            poses = self.poses_at(t + self.lidar.column_phase * self.preset.scan_period)
         else:
-            x, y, yaw = (float(v) for v in self.traffic.ego.pose_at(t))
-        scan = self.lidar.scan([self._static_scene, dynamic], x, y, yaw, rng)
+            poses = self.world_pose(k)
+        scan = self.lidar.scan([self._static_scene, dynamic], poses, rng)
         return SimScan(k, t - float(self.times[1]), self._first_inv @ self.world_pose(k), scan)
 
     def __iter__(self) -> Iterator[SimScan]:
