@@ -22,7 +22,10 @@ def train(
     export_to: Optional[Path] = typer.Option(None, "--export", help="Export best.pt to this ONNX file at the end"),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="tqdm progress bar"),
 ) -> None:
-    """Train a MOS network; resumes from OUT/last.pt. Runs DDP when launched by torchrun."""
+    """Train a MOS network; resumes from OUT/last.pt.
+
+    Multi-GPU / multi-process: ``torchrun --nproc_per_node=G $(which ros2-mos) train ...`` (DDP, NCCL on GPUs, gloo on CPU).
+    """
     import dataclasses
 
     from ros2_mos.training.trainer import TrainConfig, Trainer, export_checkpoint
@@ -33,10 +36,11 @@ def train(
     if epochs is not None:
         cfg = dataclasses.replace(cfg, epochs=epochs)
     trainer = Trainer(cfg, data, log=typer.echo, show_progress=progress)
-    typer.echo(
-        f"{cfg.network} {cfg.setup.label}: {len(trainer.train_set)} train / {len(trainer.valid_set)} valid scans, "
-        f"class weights {[round(float(w), 2) for w in trainer.class_weights]}, out {cfg.out_dir}"
-    )
+    if trainer.dist.main:
+        typer.echo(
+            f"{cfg.network} {cfg.setup.label}: {len(trainer.train_set)} train / {len(trainer.valid_set)} valid scans, "
+            f"class weights {[round(float(w), 2) for w in trainer.class_weights]}, out {cfg.out_dir}"
+        )
     history = trainer.fit()
     if not trainer.dist.main:
         return
