@@ -49,6 +49,7 @@ INTENSITY_NAMES: tuple[str, ...] = ("intensity", "reflectivity", "remission")
 MAX_POINTS: int = 16_000_000
 #: Upper bound on the bytes per point; real drivers use 16..64.
 MAX_POINT_STEP: int = 65_536
+_UINT32_MAX = 2**32 - 1
 #: Upper bound on fields per point.
 MAX_FIELDS: int = 256
 
@@ -110,6 +111,8 @@ def _as_int(value: Any, what: str) -> int:
         raise CloudLayoutError(f"PointCloud2 {what} is not an integer: {value!r}") from exc
     if number != value or number < 0:
         raise CloudLayoutError(f"PointCloud2 {what} must be a non-negative integer, got {value!r}")
+    if number > _UINT32_MAX:  # a real message cannot hold it (and 0 x 2**64 points would pass as empty)
+        raise CloudLayoutError(f"PointCloud2 {what} {value!r} does not fit the message's uint32")
     return number
 
 

@@ -303,6 +303,8 @@ def reference_decode(msg: FakeCloud) -> tuple[np.ndarray, np.ndarray, np.ndarray
         return None
     if msg.height * msg.width > MAX_POINTS:
         return None
+    if max(msg.height, msg.width, msg.point_step, msg.row_step) > 2**32 - 1:
+        return None  # PointCloud2's uint32 fields cannot hold it (e.g. height 2**32 with width 0)
     for f in msg.fields:
         if f.datatype not in _FMT or f.count < 1:
             return None
