@@ -47,55 +47,37 @@ def ground_mask(raw: np.ndarray, margin: float = 0.3) -> np.ndarray:
     return (r > 0) & (z < ground_z + margin)
 
 
-def connected_regions(valid: np.ndarray, rng: np.ndarray, rel: float, min_jump: float = 0.3, max_iter: int = 200) -> np.ndarray:
+def connected_regions(valid: np.ndarray, rng: np.ndarray, rel: float, min_jump: float = 0.3) -> np.ndarray:
     """Connected components of ``valid`` pixels linked where neighbouring ranges are close.
 
-    Min-label propagation with pointer jumping (vectorised, no scipy); the image
-    wraps around in azimuth.  Returns an (H, W) int64 label (-1 where not valid).
+    Union-find in numpy (no scipy): hook every edge's larger root onto its smaller
+    one, compress paths by pointer jumping, repeat until no edge joins two roots
+    (a few rounds).  The image wraps around in azimuth.  Returns an (H, W) int64
+    label (-1 where not valid); pixels of one region share the smallest pixel id.
     """
     h, w = valid.shape
     ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
-    big = np.int64(h * w)
-    label = np.where(valid, ids, big)
     right_r = np.roll(rng, -1, axis=1)
-    tol = np.maximum(min_jump, rel * np.minimum(rng, right_r))
-    link_right = valid & np.roll(valid, -1, axis=1) & (np.abs(rng - right_r) < tol)
-    down_r = np.empty_like(rng)
-    down_r[:-1] = rng[1:]
-    down_r[-1] = 0.0
-    down_valid = np.zeros_like(valid)
-    down_valid[:-1] = valid[1:]
-    tol = np.maximum(min_jump, rel * np.minimum(rng, down_r))
-    link_down = valid & down_valid & (np.abs(rng - down_r) < tol)
-    link_down[-1] = False
-    flat = label.reshape(-1)
-    for _ in range(max_iter):
-        lab = flat.reshape(h, w)
-        new = lab.copy()
-        # right neighbour <-> this pixel
-        nb = np.roll(lab, -1, axis=1)
-        np.minimum(new, np.where(link_right, nb, big), out=new)
-        nb = np.roll(lab, 1, axis=1)
-        np.minimum(new, np.where(np.roll(link_right, 1, axis=1), nb, big), out=new)
-        nb = np.empty_like(lab)
-        nb[:-1] = lab[1:]
-        nb[-1] = big
-        np.minimum(new, np.where(link_down, nb, big), out=new)
-        nb = np.empty_like(lab)
-        nb[1:] = lab[:-1]
-        nb[0] = big
-        up_link = np.zeros_like(link_down)
-        up_link[1:] = link_down[:-1]
-        np.minimum(new, np.where(up_link, nb, big), out=new)
-        nf = new.reshape(-1)
-        ok = nf < big
-        for _ in range(3):  # pointer jumping: follow labels to their own labels
-            nf[ok] = np.minimum(nf[ok], nf[nf[ok]])
-        if np.array_equal(nf, flat):
+    link_right = valid & np.roll(valid, -1, axis=1)
+    link_right &= np.abs(rng - right_r) < np.maximum(min_jump, rel * np.minimum(rng, right_r))
+    link_down = valid[:-1] & valid[1:]
+    link_down &= np.abs(rng[:-1] - rng[1:]) < np.maximum(min_jump, rel * np.minimum(rng[:-1], rng[1:]))
+    a = np.concatenate([ids[link_right], ids[:-1][link_down]])
+    b = np.concatenate([np.roll(ids, -1, axis=1)[link_right], ids[1:][link_down]])
+    parent = ids.reshape(-1).copy()
+    while len(a):
+        pa, pb = parent[a], parent[b]
+        differ = pa != pb
+        if not differ.any():
             break
-        flat = nf
-    out = flat.reshape(h, w)
-    return np.where(valid, out, -1)
+        a, b, pa, pb = a[differ], b[differ], pa[differ], pb[differ]
+        np.minimum.at(parent, np.maximum(pa, pb), np.minimum(pa, pb))
+        while True:
+            jumped = parent[parent]
+            if np.array_equal(jumped, parent):
+                break
+            parent = jumped
+    return np.where(valid, parent.reshape(h, w), -1)
 
 
 @dataclass(frozen=True)
