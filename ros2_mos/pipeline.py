@@ -23,6 +23,10 @@ from ros2_mos.postprocess import backproject
 from ros2_mos.projection import RangeImage, check_points, finite_mask, project
 from ros2_mos.residuals import relative_pose, residual_images, transform_points
 
+#: Above this share of points outside the sensor's vertical field of view or range limits, the
+#: cloud does not fit the configured sensor (another beam layout): its labels are flagged degraded.
+MAX_OUTSIDE_FRACTION = 0.5
+
 
 @dataclass
 class MosResult:
@@ -158,6 +162,10 @@ class MosPipeline:
         watch.lap("odometry")
 
         image = project(xyz, e, self.sensor)
+        outside = 1.0 - float(image.pixels.in_image.mean())
+        if outside > MAX_OUTSIDE_FRACTION:
+            warnings.append(f"{outside:.0%} of the points fall outside the {self.sensor.name} field of view or range "
+                            "(they take the nearest edge pixel's label): does the sensor configuration match the cloud?")
         watch.lap("projection")
 
         past = self.buffer.newest_first()

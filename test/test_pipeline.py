@@ -179,3 +179,19 @@ def test_non_finite_given_pose_is_a_scan_error(pipeline):
     bad[1, 3] = np.nan
     with pytest.raises(ScanError, match="not finite"):
         pipeline.process(pts, rem, 0.0, pose=bad)
+
+
+def test_cloud_of_another_beam_layout_is_labelled_but_flagged_degraded(pipeline):
+    """A 128-beam cloud spanning +-45 deg on the 32-beam model: every point gets a label, none is lost,
+    and the labels are flagged degraded because most points lie outside the model's field of view."""
+    rng = np.random.default_rng(3)
+    n = 20000
+    az, el = rng.uniform(-np.pi, np.pi, n), np.deg2rad(rng.choice(np.linspace(-45, 45, 128), n))
+    r = rng.uniform(3, 40, n)
+    pts = np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)]).astype(np.float32)
+    res = pipeline.process(pts, None, 0.0, pose=np.eye(4))
+    assert res.valid.all() and res.labels.shape == (n,) and np.isfinite(res.probability).all()
+    assert res.degraded and any("outside the test32 field of view" in w for w in res.warnings), res.warnings
+    # The street scene fits the sensor (a few points above/below the fov): no such warning.
+    scene, rem, _, pose = street_sequence(1)[0]
+    assert not any("field of view" in w for w in pipeline.process(scene, rem, 0.1, pose=pose).warnings)
