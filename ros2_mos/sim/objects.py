@@ -1,7 +1,7 @@
 """Label ids the simulator writes, and the shapes of its traffic participants.
 
 Shapes are a few boxes each with realistic sizes (car ~4.5 x 1.8 x 1.5 m,
-cyclist ~1.8 x 0.6 x 1.75 m, pedestrian ~0.5 x 0.5 x 1.75 m), in the object's
+bus ~11 x 2.5 x 3.2 m, cyclist ~1.8 x 0.6 x 1.75 m, pedestrian ~0.5 x 0.5 x 1.75 m), in the object's
 own frame: x forward, y left, z up from the ground.  Each kind has a static and
 a moving semantic id; which one a point gets depends on whether the object's
 pose changed since the previous scan.
@@ -16,10 +16,10 @@ import numpy as np
 from ros2_mos.sim.geometry import boxes
 
 # SemanticKITTI ids (see ros2_mos.labels.SEMANTIC_NAMES).
-CAR, PERSON, BICYCLIST = 10, 30, 31
+CAR, BUS, PERSON, BICYCLIST = 10, 13, 30, 31
 ROAD, SIDEWALK, BUILDING = 40, 48, 50
 VEGETATION, TRUNK, TERRAIN, POLE = 70, 71, 72, 80
-MOVING_CAR, MOVING_BICYCLIST, MOVING_PERSON = 252, 253, 254
+MOVING_CAR, MOVING_BICYCLIST, MOVING_PERSON, MOVING_BUS = 252, 253, 254, 257
 
 
 @dataclass(frozen=True)
@@ -35,9 +35,12 @@ class ObjectKind:
 
 
 CAR_KIND = ObjectKind("car", CAR, MOVING_CAR, (-1.35, 0.0, 1.35), 1.0)
+BUS_KIND = ObjectKind("bus", BUS, MOVING_BUS, (-4.5, -1.5, 1.5, 4.5), 1.35)
 CYCLIST_KIND = ObjectKind("cyclist", BICYCLIST, MOVING_BICYCLIST, (-0.5, 0.5), 0.4)
 PEDESTRIAN_KIND = ObjectKind("pedestrian", PERSON, MOVING_PERSON, (0.0,), 0.35)
-KINDS = {k.name: k for k in (CAR_KIND, CYCLIST_KIND, PEDESTRIAN_KIND)}
+KINDS = {k.name: k for k in (CAR_KIND, BUS_KIND, CYCLIST_KIND, PEDESTRIAN_KIND)}
+#: Length (m) a column reserves for one of each kind of vehicle.
+LENGTH = {"car": 4.9, "bus": 12.0}
 
 
 def car_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -53,6 +56,16 @@ def car_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     tris = boxes(sizes, centers)
     paint = rng.uniform(0.05, 0.9)
     rem = np.repeat([0.1, paint, 0.08], len(tris) // 3).astype(np.float32)  # tyres, paint, glass
+    return tris, rem
+
+
+def bus_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A bus or lorry: a tall box on a skirt, ~11 x 2.5 x 3.2 m; it hides much of the street beside it."""
+    length, height = rng.uniform(10.0, 12.0), rng.uniform(3.0, 3.5)
+    sizes = np.array([[length - 1.5, 2.3, 0.35], [length, 2.5, height - 0.35]])
+    centers = np.array([[0.0, 0.0, 0.175], [0.0, 0.0, 0.35 + (height - 0.35) / 2]])
+    tris = boxes(sizes, centers)
+    rem = np.repeat([0.1, rng.uniform(0.2, 0.8)], len(tris) // 2).astype(np.float32)
     return tris, rem
 
 
@@ -75,4 +88,4 @@ def pedestrian_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     return tris, rem
 
 
-SHAPES = {"car": car_shape, "cyclist": cyclist_shape, "pedestrian": pedestrian_shape}
+SHAPES = {"car": car_shape, "bus": bus_shape, "cyclist": cyclist_shape, "pedestrian": pedestrian_shape}

@@ -172,6 +172,8 @@ class TrafficConfig:
     # Traffic-jam column in the lane left of the ego lane (needs lanes_per_direction >= 2).
     side_column: bool = False
     side_column_speed: Range = (2.0, 6.0)
+    # Share of buses/lorries among the cars of the lane columns.
+    heavy_vehicle_prob: float = 0.05
     max_attempts: int = 6
 
     def __post_init__(self) -> None:
@@ -184,6 +186,7 @@ class TrafficConfig:
                 raise ConfigError(f"{name} must be (min, max) counts, got {value}")
         _check_prob("stop_and_go_prob", self.stop_and_go_prob)
         _check_prob("standing_pedestrian_prob", self.standing_pedestrian_prob)
+        _check_prob("heavy_vehicle_prob", self.heavy_vehicle_prob)
         for name in ("oncoming_per_100m", "cross_cars_per_100m", "slow_cars_per_100m", "cyclists_per_100m",
                      "pedestrians_per_100m"):
             if getattr(self, name) < 0:
@@ -258,7 +261,7 @@ SIM_PRESETS: dict[str, SimPreset] = {
             lead_cars=(2, 3), follow_cars=(2, 3), headway=(1.0, 1.6), gap=(1.5, 3.0),
             oncoming_per_100m=8.0, oncoming_speed=(3.0, 8.0), cross_cars_per_100m=1.5,
             slow_cars_per_100m=0.5, cyclists_per_100m=1.0, pedestrians_per_100m=6.0,
-            side_column=True, side_column_speed=(3.0, 7.0),
+            side_column=True, side_column_speed=(3.0, 7.0), heavy_vehicle_prob=0.3,
         ),
     ),
 }

@@ -11,11 +11,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ros2_mos.sim import objects as ob
+from ros2_mos.labels import MOVING_IDS
 from ros2_mos.sim.lidar import LidarScan
 from ros2_mos.sim.traffic import Agent
 
-_MOVING_IDS = np.array([ob.MOVING_CAR, ob.MOVING_BICYCLIST, ob.MOVING_PERSON])
+_MOVING_IDS = np.array(MOVING_IDS)
 
 
 @dataclass

@@ -230,7 +230,10 @@ class _TrafficBuilder:
         prof = self.profile(speed, stop_and_go, (30.0, 120.0), (2.0, 8.0))
         n = _MAX_COLUMN
         headway = self.rng.uniform(*tr.headway, n)
-        gaps = 4.9 + self.rng.uniform(*tr.gap, n)
+        kinds = np.where(self.rng.random(n) < tr.heavy_vehicle_prob, "bus", "car")
+        lengths = np.array([ob.LENGTH[k] for k in kinds])
+        # Slot i is this far behind slot i - 1: half of each length plus a gap (slot 0's entry is unused).
+        gaps = 0.5 * (lengths + np.roll(lengths, 1)) + self.rng.uniform(*tr.gap, n)
         slot = float(np.mean(gaps) + np.mean(headway) * (prof.s[-1] - prof.s[0]) / (self.t1 - self.t0))
         keep_p = min(1.0, density * slot / 100.0)
         keep = self.rng.random(n) < keep_p
@@ -240,7 +243,7 @@ class _TrafficBuilder:
         base = prof.at(0.0)
         for i in np.nonzero(keep)[0]:
             travelled = prof.at(self.times - shift[i]) - base - dist[i]
-            self.along_ego_route(ob.CAR_KIND, anchor_s, travelled, lateral, direction, role,
+            self.along_ego_route(ob.KINDS[str(kinds[i])], anchor_s, travelled, lateral, direction, role,
                                  check_collisions=False)
 
     def lanes(self) -> None:
