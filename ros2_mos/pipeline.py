@@ -133,8 +133,12 @@ class MosPipeline:
         n_valid = int(valid.sum())
         if n_valid == 0:
             raise ScanError(f"scan has no finite point with positive range (all {n} points invalid)")
-        xyz = np.ascontiguousarray(pts[valid], dtype=np.float32)
-        e = np.nan_to_num(rem[valid], nan=0.0, posinf=0.0, neginf=0.0)
+        if n_valid == n:  # the common case: a plain copy (kept in the buffer), no boolean gather
+            xyz = np.array(pts, dtype=np.float32, order="C")
+            e = np.nan_to_num(rem, nan=0.0, posinf=0.0, neginf=0.0)
+        else:
+            xyz = np.ascontiguousarray(pts[valid], dtype=np.float32)
+            e = np.nan_to_num(rem[valid], nan=0.0, posinf=0.0, neginf=0.0)
 
         warnings: list[str] = []
         if self._last_stamp is not None and timestamp <= self._last_stamp:

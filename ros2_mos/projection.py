@@ -130,6 +130,8 @@ def finite_mask(points: np.ndarray) -> np.ndarray:
     projection and reported by the pipeline instead.
     """
     pts = check_points(points)
-    finite = np.isfinite(pts).all(axis=1)
-    nonzero = (pts != 0).any(axis=1)
-    return finite & nonzero
+    # One pass over the squared range: it is NaN/inf when any coordinate is, and 0 only at
+    # the origin. (It also overflows for coordinates beyond ~1e19 m, which are garbage too.)
+    with np.errstate(over="ignore", invalid="ignore"):
+        r2 = np.einsum("ij,ij->i", pts, pts)
+    return np.isfinite(r2) & (r2 > 0)
