@@ -180,12 +180,14 @@ class _TrafficBuilder:
     def profile(self, speed: tuple[float, float], stop_and_go: bool, stop_every: tuple[float, float],
                 stop_for: tuple[float, float], extra_stops: list[Stop] | None = None,
                 hold_until: float | None = None,
-                speed_limit: Callable[[float], float] | None = None) -> SpeedProfile:
+                speed_limit: Callable[[float], float] | None = None, margin: float = 0.0) -> SpeedProfile:
+        """A profile over the simulated window, widened by ``margin`` s on both sides for time-shifted copies."""
+        t0, t1 = self.t0 - margin, self.t1 + margin
         cruise = float(self.rng.uniform(*speed))
         stops = list(extra_stops or [])
         if stop_and_go:
-            stops += random_stops(self.rng, cruise * (self.t1 - self.t0) + 50.0, stop_every, stop_for)
-        return simulate_profile(self.t0, self.t1, cruise, stops, speed_limit=speed_limit,
+            stops += random_stops(self.rng, cruise * (t1 - t0) + 50.0, stop_every, stop_for)
+        return simulate_profile(t0, t1, cruise, stops, speed_limit=speed_limit,
                                 hold_until=hold_until, v0=None if hold_until is None else 0.0)
 
     def lane(self, lateral: float) -> Path:
@@ -201,6 +203,8 @@ class _TrafficBuilder:
         ``travelled`` is 0, moving ``travelled`` metres along its own curve in ``direction``."""
         lane = self.lane(lateral)
         s = float(np.interp(s_route, self.ego.route.s, lane.s)) + direction * travelled
+        if s.min() <= 0.0 or s.max() >= lane.length:
+            return False  # it would stand frozen at an end of the route: not a participant
         x, y, yaw = lane.pose(s)
         if direction < 0:
             yaw = yaw + np.pi
@@ -227,14 +231,15 @@ class _TrafficBuilder:
                anchor_s: float, role: str, stop_and_go: bool) -> None:
         """A lane full of cars sharing one (stop-and-go) profile, kept with probability from ``density``."""
         tr = self.preset.traffic
-        prof = self.profile(speed, stop_and_go, (30.0, 120.0), (2.0, 8.0))
         n = _MAX_COLUMN
         headway = self.rng.uniform(*tr.headway, n)
         kinds = np.where(self.rng.random(n) < tr.heavy_vehicle_prob, "bus", "car")
         lengths = np.array([ob.LENGTH[k] for k in kinds])
         # Slot i is this far behind slot i - 1: half of each length plus a gap (slot 0's entry is unused).
         gaps = 0.5 * (lengths + np.roll(lengths, 1)) + self.rng.uniform(*tr.gap, n)
-        slot = float(np.mean(gaps) + np.mean(headway) * (prof.s[-1] - prof.s[0]) / (self.t1 - self.t0))
+        # Every slot's time-shifted copy must lie inside the simulated profile, or it would freeze.
+        prof = self.profile(speed, stop_and_go, (30.0, 120.0), (2.0, 8.0), margin=0.5 * headway.sum() + 5.0)
+        slot = float(np.mean(gaps) + np.mean(headway) * (prof.s[-1] - prof.s[0]) / (prof.t[-1] - prof.t[0]))
         keep_p = min(1.0, density * slot / 100.0)
         keep = self.rng.random(n) < keep_p
         # Slot n/2 sits at the anchor; higher slots follow it, lower ones lead it.
