@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ros2_mos.config import SENSOR_PRESETS, SensorConfig
-from ros2_mos.datasets.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_label, read_poses, read_scan
+from ros2_mos.datasets.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_label, read_poses
 from ros2_mos.errors import ConfigError
 from ros2_mos.labels import MOVING_IDS, semantic_ids, instance_ids
 from ros2_mos.sim import SequenceSimulator, format_stats, sequence_dir, simulate_sequence, with_effects, sim_preset
