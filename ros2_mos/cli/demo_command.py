@@ -18,17 +18,17 @@ DEMO_SEQUENCE = "demo"  # a name never used for training: the simulator seeds ea
 DEMO_SEED = 2026
 
 
-def ensure_demo_data(root: Path, scans: int) -> tuple[Path, Path]:
-    """The demo sequence and its bag under ``root``, simulated on first use."""
+def ensure_sequence(root: Path, name: str, scans: int, seed: int, preset: str = "benchmark") -> tuple[Path, Path]:
+    """A simulated HDL-64 sequence and its bag under ``root``, simulated on first use."""
     from tqdm import tqdm
 
     from ros2_mos.sim import sequence_dir, simulate_sequence, write_sequence_bag
 
-    seq = sequence_dir(root, DEMO_SEQUENCE)
-    bag = root / "bags" / DEMO_SEQUENCE
+    seq = sequence_dir(root, name)
+    bag = root / "bags" / name
     if not (seq / "times.txt").is_file() or len(list((seq / "velodyne").glob("*.bin"))) != scans:
-        with tqdm(total=scans, desc="simulating the demo street", unit="scan") as bar:
-            simulate_sequence(root, DEMO_SEQUENCE, scans, "benchmark", DEMO_SEED, "hdl64", progress=bar.update)
+        with tqdm(total=scans, desc=f"simulating street '{name}'", unit="scan") as bar:
+            simulate_sequence(root, name, scans, preset, seed, "hdl64", progress=bar.update)
         if bag.exists():
             import shutil
 
@@ -49,7 +49,7 @@ def demo(
     """Simulate a street, replay it as a bag through a running mos_node, print Hz, stage ms and moving IoU."""
     from ros2_mos.ros.harness import NodeProcess, isolate_ros_domain, replay_through_node
 
-    seq_dir, bag = ensure_demo_data(data, scans)
+    seq_dir, bag = ensure_sequence(data, DEMO_SEQUENCE, scans, DEMO_SEED)
     domain = isolate_ros_domain()
     params = {"qos.reliability": "reliable", "qos.depth": "1"}
     if model is not None:

@@ -1,0 +1,119 @@
+"""``bench``: where the time goes, per stage, for each shipped model, against a LiDAR-MOS-style reference."""
+
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from ros2_mos.cli.app import app
+
+BENCH_SEQUENCE = "bench"
+BENCH_SEED = 7
+
+
+def shipped_models() -> list[Path]:
+    from ros2_mos.inference import default_model_path
+
+    return sorted(default_model_path().parent.glob("*.onnx"))
+
+
+@app.command()
+def bench(
+    data: Path = typer.Option(Path("data/bench"), help="Where the benchmark sequence and bag are (simulated if missing)"),
+    scans: int = typer.Option(50, min=5, help="Scans timed per configuration (after 5 warm-up scans)"),
+    model: Optional[list[Path]] = typer.Option(None, help="ONNX models to time (default: every shipped model)"),
+    threads: int = typer.Option(0, help="ONNX Runtime intra-op threads (0 = runtime default)"),
+    reference: bool = typer.Option(True, help="Also time the LiDAR-MOS-style reference (numpy residuals, SalsaNext N=8 eager)"),
+    reference_scans: int = typer.Option(5, min=1, help="Scans timed for the (slow) reference"),
+    node: bool = typer.Option(True, help="Also run mos_node as a process with the bag replayed at 10 Hz and 20 Hz"),
+    node_model: Optional[Path] = typer.Option(None, help="Model for the node runs (default: the shipped default)"),
+    out: Optional[Path] = typer.Option(None, help="Also write the report (Markdown) to this file"),
+) -> None:
+    """Median / p95 ms per stage, end-to-end latency, Hz and peak RSS; reference ratio; the node under replay."""
+    from ros2_mos.bench import bench_pipeline, format_table
+    from ros2_mos.cli.demo_command import ensure_sequence
+
+    seq_dir, bag = ensure_sequence(data, BENCH_SEQUENCE, scans + 5, BENCH_SEED)
+    models = list(model) if model else shipped_models()
+    lines = [f"# ros2-mos bench, {datetime.date.today().isoformat()}",
+             f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, load average "
+             f"{os.getloadavg()[0]:.1f}; {scans} scans of {seq_dir} (64 x 2048 HDL-64, simulated)", ""]
+    results = []
+    for m in models:
+        typer.echo(f"timing {m.name} ...")
+        results.append(bench_pipeline(bag, m, scans, threads=threads))
+    if reference:
+        typer.echo("timing the LiDAR-MOS-style reference (SalsaNext N=8, PyTorch eager) ...")
+        results.append(_bench_reference(seq_dir, reference_scans))
+    lines += ["## Pipeline, one scan at a time (the node's code, no DDS)", "", format_table(results), ""]
+    ours = [r for r in results if not r.label.startswith("reference")]
+    ref = [r for r in results if r.label.startswith("reference")]
+    if ours and ref:
+        for r in ours:
+            lines.append(f"- speed-up of {r.label} over the reference: {ref[0].total_ms[0] / r.total_ms[0]:.1f}x "
+                         "(median end-to-end; the reference excludes decode/encode/odometry)")
+        lines.append("")
+    typer.echo("\n".join(lines))
+    if node:
+        node_lines = _bench_node(bag, node_model)
+        typer.echo("\n".join(node_lines))
+        lines += node_lines
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text("\n".join(lines) + "\n")
+        typer.echo(f"wrote {out}")
+
+
+def _bench_reference(seq_dir: Path, scans: int):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        return pool.submit(_reference_worker, str(seq_dir), scans).result()
+
+
+def _reference_worker(seq_dir: str, scans: int):
+    from ros2_mos.bench import summarise
+    from ros2_mos.config import sensor_preset
+    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
+    from ros2_mos.training.reference import ReferencePipeline
+
+    seq = SemanticKittiSequence(seq_dir)
+    pipe = ReferencePipeline(sensor_preset("hdl64"), n_past=8, threads=os.cpu_count() or 2)
+    timings = []
+    for i in range(min(len(seq), scans + 8)):
+        frame = seq[i]
+        _, t = pipe.process(frame.points, frame.remission, frame.pose)
+        if i >= 8:  # all 8 residuals present
+            timings.append(t)
+    return summarise("reference: SalsaNext N=8 eager + numpy residuals", timings,
+                     "LiDAR-MOS code path on this CPU, dataset poses")
+
+
+def _bench_node(bag: Path, model: Optional[Path]) -> list[str]:
+    import numpy as np
+
+    from ros2_mos.ros.harness import NodeProcess, isolate_ros_domain, replay_through_node
+
+    isolate_ros_domain()
+    lines = ["## mos_node as a process, the bag replayed by `ros2-mos replay` (stamps = publication time)", "",
+             "| replay rate | published | labels received | node processed | node dropped | "
+             "latency stamp -> /mos/labels median / p95 (ms) |", "|---|---|---|---|---|---|"]
+    for hz, rate in ((10, 1.0), (20, 2.0)):
+        params = {"qos.reliability": "reliable", "qos.depth": "1"}
+        if model is not None:
+            params["model"] = str(model.resolve())
+        typer.echo(f"node run at {hz} Hz ...")
+        with NodeProcess(params):
+            report = replay_through_node(bag, rate, restamp=True)
+        lat = np.array(report.latency_ms) if report.latency_ms else np.zeros(1)
+        d = report.diagnostics
+        lines.append(f"| {hz} Hz | {report.sent} | {len(report.labels)} | {d.get('processed', '?')} | "
+                     f"{d.get('dropped', '?')} | {np.median(lat):.0f} / {np.percentile(lat, 95):.0f} |")
+    return lines + [""]

@@ -1,0 +1,33 @@
+"""The benchmark runs on a tiny input and reports every stage (no timing assertions)."""
+
+import numpy as np
+
+from scenes import street_sequence
+from ros2_mos.bench import STAGES, bench_pipeline, format_table
+from ros2_mos.datasets.bags import write_scans_bag
+
+
+def test_bench_pipeline_reports_every_stage(tmp_path, tiny_model_path):
+    scans = street_sequence(5)
+    bag = tmp_path / "bag"
+    write_scans_bag(bag, ((i * 100_000_000 + 1, p, r) for i, (p, r, _, _) in enumerate(scans)))
+    result = bench_pipeline(bag, tiny_model_path, scans=3, warmup=2)
+    assert result.scans == 3
+    assert set(STAGES) <= set(result.stage_ms)
+    assert all(med > 0 and p95 >= med for med, p95 in result.stage_ms.values() if med > 0)
+    assert result.total_ms[0] >= result.stage_ms["inference"][0]
+    assert result.peak_rss_mb > 10
+    table = format_table([result])
+    assert "| decode |" in table and "end to end" in table and "residual-threshold" in table
+
+
+def test_reference_pipeline_labels_every_point():
+    from conftest import TEST_SENSOR
+    from ros2_mos.training.reference import ReferencePipeline
+
+    pipe = ReferencePipeline(TEST_SENSOR, n_past=2, threads=1)
+    for points, rem, _, pose in street_sequence(3):
+        labels, timings = pipe.process(points, rem, pose)
+        assert labels.shape == (len(points),)
+        assert set(np.unique(labels.numpy() if hasattr(labels, "numpy") else labels)) <= {1, 2}
+        assert {"residuals", "projection", "inference", "postprocess", "total"} <= set(timings)
