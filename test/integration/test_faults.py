@@ -135,7 +135,7 @@ def test_silent_input_is_reported_stale_then_processing_resumes_with_a_reset(har
     start = len(harness.received["diag"])
     stale = _wait_diag(harness, lambda level, message, _: message.startswith("no input"), start, STALE_AFTER_S + 5)
     assert stale is not None, "diagnostics never reported the silent input"
-    assert stale[0] == m.WARN and float(stale[1].split()[-2]) > STALE_AFTER_S, stale[1]
+    assert stale[0] == m.WARN and float(stale[1].split()[-2]) >= STALE_AFTER_S, stale[1]  # printed to 0.1 s
 
     # The driver comes back 3 s (of stamps) later: > reset_after_gap, so the buffer is reset.
     stamp += 3_000_000_000
