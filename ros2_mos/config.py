@@ -151,8 +151,9 @@ class OdometryConfig:
     min_range: float = 0.0
     voxel_size: float | None = None
     deskew: bool = False
-    # A relative motion larger than this between two scans (10 Hz) is treated as a
+    # A relative motion larger than this per 0.1 s (one scan at 10 Hz; 50 m/s) is treated as a
     # failure of the odometry: the scan buffer is reset instead of producing garbage residuals.
+    # The limit grows with the time since the last processed scan, so dropped scans don't trip it.
     max_translation_jump: float = 5.0
     # 'all': KISS-ICP's map takes every point (plain KISS-ICP); 'static': only the points MOS
     # labelled static, so that moving objects never enter the map the next scans register to.

@@ -158,10 +158,13 @@ class MosPipeline:
         pose = np.asarray(pose, dtype=np.float64)
         if not np.isfinite(pose).all():
             raise ScanError("the given pose is not finite")
-        if self._last_pose is not None:
+        if self._last_pose is not None and self._last_stamp is not None:
             jump = float(np.linalg.norm(relative_pose(self._last_pose, pose)[:3, 3]))
-            if jump > self.config.odometry.max_translation_jump:
-                warnings.append(f"pose jumped {jump:.1f} m in one scan: odometry suspect, buffer reset")
+            # Per 0.1 s (one 10 Hz scan): scans dropped upstream must not look like a jump.
+            limit = self.config.odometry.max_translation_jump * max(1.0, (timestamp - self._last_stamp) / 0.1)
+            if jump > limit:
+                warnings.append(f"pose jumped {jump:.1f} m since the last scan (limit {limit:.1f} m): "
+                                "odometry suspect, buffer reset")
                 self.buffer.clear()
         watch.lap("odometry")
 

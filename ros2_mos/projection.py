@@ -59,8 +59,8 @@ def pixel_index(points: np.ndarray, sensor: SensorConfig) -> PixelIndex:
     """Compute each point's pixel; points must be finite with positive range (see ``finite_mask``)."""
     pts = check_points(points)
     x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
-    r = np.sqrt(x * x + y * y + z * z)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        r = np.sqrt(x * x + y * y + z * z)
         pitch = np.arcsin(np.clip(z / r, -1.0, 1.0, dtype=r.dtype))
     yaw = np.arctan2(y, x)
     u_f = 0.5 * (1.0 - yaw / np.pi) * sensor.width

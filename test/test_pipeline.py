@@ -195,3 +195,13 @@ def test_cloud_of_another_beam_layout_is_labelled_but_flagged_degraded(pipeline)
     # The street scene fits the sensor (a few points above/below the fov): no such warning.
     scene, rem, _, pose = street_sequence(1)[0]
     assert not any("field of view" in w for w in pipeline.process(scene, rem, 0.1, pose=pose).warnings)
+
+
+def test_pose_jump_limit_grows_with_the_time_since_the_last_scan(pipeline):
+    seq = street_sequence(3)
+    pipeline.process(seq[0][0], seq[0][1], 0.0, pose=seq[0][3])
+    moved = seq[1][3].copy()
+    moved[0, 3] += 8.0  # 8 m: a jump after 0.1 s, plausible after 0.3 s (two scans dropped)
+    res = pipeline.process(seq[1][0], seq[1][1], 0.3, pose=moved)
+    assert not any("jumped" in w for w in res.warnings)
+    assert res.n_past_available == 1

@@ -81,7 +81,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("odometry.voxel_size", 0.0, "KISS-ICP voxel size (m); 0 = max_range / 100", min=0.0),
     ParamSpec("odometry.deskew", _DEF_ODOM.deskew, "KISS-ICP constant-velocity deskewing"),
     ParamSpec("odometry.max_translation_jump", _DEF_ODOM.max_translation_jump,
-              "a larger motion between two scans (m) is an odometry failure: the scan buffer is reset", min=0.0),
+              "a larger motion per 0.1 s between two processed scans (m) is an odometry failure: the scan buffer is reset", min=0.0),
     ParamSpec("odometry.map_update", _DEF_ODOM.map_update,
               "what enters KISS-ICP's map: every point, or only those labelled static", choices=("all", "static")),
     # --- input
