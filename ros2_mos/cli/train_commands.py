@@ -79,6 +79,7 @@ def ablation(
     epochs: Optional[int] = typer.Option(None, help="Override the base config's epochs"),
     baselines: bool = typer.Option(True, "--baselines/--no-baselines", help="Include the Residual / Residual+RG rows"),
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the table to this Markdown file"),
+    test_stride: int = typer.Option(1, help="Score every k-th test scan only (faster; residuals still use all scans)"),
 ) -> None:
     """The paper's ablation (Tables I/II) on held-out sequences: point moving IoU with kNN back-projection."""
     import dataclasses
@@ -91,7 +92,7 @@ def ablation(
         base = dataclasses.replace(base, epochs=epochs)
     variants = [Variant.parse(v) for v in variant]
     rows = run_ablation(base, data, [t.zfill(2) if t.isdigit() else t for t in test], variants, runs,
-                        baselines=baselines, log=typer.echo)
+                        baselines=baselines, log=typer.echo, test_stride=test_stride)
     table = format_table(rows)
     typer.echo(table)
     if out is not None:

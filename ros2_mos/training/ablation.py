@@ -72,11 +72,15 @@ def evaluate_point_iou(
     predict: Callable[[SequenceCache, int], np.ndarray],
     postprocess: PostprocessConfig = PostprocessConfig(),
     threshold: float = 0.5,
+    stride: int = 1,
 ) -> MovingIoU:
-    """Point moving IoU over test caches (built ``with_points``) of a per-pixel probability predictor."""
+    """Point moving IoU over test caches (built ``with_points``) of a per-pixel probability predictor.
+
+    ``stride`` > 1 scores every stride-th scan only (the residuals still use every past scan).
+    """
     score = MovingIoU()
     for cache in caches:
-        for i in range(len(cache)):
+        for i in range(0, len(cache), max(1, stride)):
             prob = np.asarray(predict(cache, i), np.float32)
             pts = cache.points(i)
             pixels = PixelIndex(pts["u"].astype(np.int32), pts["v"].astype(np.int32), pts["range"], pts["in_image"])
@@ -109,6 +113,7 @@ def run_ablation(
     baselines: bool = True,
     log: Callable[[str], None] = lambda s: None,
     show_progress: bool = False,
+    test_stride: int = 1,
 ) -> list[Row]:
     """Train (or resume) each variant, tune the baselines, and score everything on the test sequences."""
     spec = dataclasses.replace(base.cache_spec, with_points=True)
@@ -121,12 +126,12 @@ def run_ablation(
                                     base.cache_workers, log)
         t0 = time.monotonic()
         thr, _ = tune_residual_threshold(valid_caches, [0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.2])
-        score = evaluate_point_iou(test_caches, lambda c, i: thr.predict(c, i).astype(np.float32))
+        score = evaluate_point_iou(test_caches, lambda c, i: thr.predict(c, i).astype(np.float32), stride=test_stride)
         rows.append(Row("Residual (threshold d_1)", "residual N=1", score.iou, f"tau={thr.tau} (tuned on valid)"))
         log(f"Residual baseline: IoU {100 * score.iou:.1f} ({time.monotonic() - t0:.0f} s)")
         t0 = time.monotonic()
         rg, _ = tune_region_growing(valid_caches, [0.1, 0.2, 0.4], [0.03, 0.06], [0.1, 0.3, 0.5])
-        score = evaluate_point_iou(test_caches, lambda c, i: rg.predict(c, i).astype(np.float32))
+        score = evaluate_point_iou(test_caches, lambda c, i: rg.predict(c, i).astype(np.float32), stride=test_stride)
         rows.append(Row("Residual + RG (free space + region growing)", "residual N=2", score.iou,
                         f"tau={rg.tau_seed}, jump={rg.rel_jump}, frac={rg.seed_fraction} (tuned on valid)"))
         log(f"Residual + RG baseline: IoU {100 * score.iou:.1f} ({time.monotonic() - t0:.0f} s)")
@@ -147,7 +152,7 @@ def run_ablation(
         state = load_checkpoint(Path(config.out_dir) / "best.pt")
         model = model_from_checkpoint(state)
         predict = network_predictor(model, test_caches, variant.setup, state["means"], state["stds"])
-        score = evaluate_point_iou(test_caches, predict)
+        score = evaluate_point_iou(test_caches, predict, stride=test_stride)
         valid = state.get("valid_iou", float("nan"))
         rows.append(Row(variant.network, variant.setup.label, score.iou,
                         f"epochs {state['epoch'] + 1}, valid pixel IoU {100 * valid:.1f}", minutes))
