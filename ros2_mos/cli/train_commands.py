@@ -19,6 +19,7 @@ def train(
     data: Path = typer.Option(..., "--data", help="SemanticKITTI-format root (…/sequences/XX) with labels and poses"),
     out: Optional[Path] = typer.Option(None, "--out", help="Run folder (overrides the config's out_dir)"),
     epochs: Optional[int] = typer.Option(None, help="Override the config's epochs"),
+    max_minutes: Optional[float] = typer.Option(None, help="Override the config's wall-clock budget (minutes per run)"),
     export_to: Optional[Path] = typer.Option(None, "--export", help="Export best.pt to this ONNX file at the end"),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="tqdm progress bar"),
 ) -> None:
@@ -35,6 +36,8 @@ def train(
         cfg = dataclasses.replace(cfg, out_dir=str(out))
     if epochs is not None:
         cfg = dataclasses.replace(cfg, epochs=epochs)
+    if max_minutes is not None:
+        cfg = dataclasses.replace(cfg, max_minutes=max_minutes)
     trainer = Trainer(cfg, data, log=typer.echo, show_progress=progress)
     if trainer.dist.main:
         typer.echo(
@@ -77,6 +80,7 @@ def ablation(
     ),
     runs: Path = typer.Option(Path("runs/ablation"), help="Run folders of the variants (resumed if present)"),
     epochs: Optional[int] = typer.Option(None, help="Override the base config's epochs"),
+    max_minutes: Optional[float] = typer.Option(None, help="Override the wall-clock budget per variant (minutes)"),
     baselines: bool = typer.Option(True, "--baselines/--no-baselines", help="Include the Residual / Residual+RG rows"),
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the table to this Markdown file"),
     test_stride: int = typer.Option(1, help="Score every k-th test scan only (faster; residuals still use all scans)"),
@@ -90,6 +94,8 @@ def ablation(
     base = TrainConfig.from_yaml(config)
     if epochs is not None:
         base = dataclasses.replace(base, epochs=epochs)
+    if max_minutes is not None:
+        base = dataclasses.replace(base, max_minutes=max_minutes)
     variants = [Variant.parse(v) for v in variant]
     rows = run_ablation(base, data, [t.zfill(2) if t.isdigit() else t for t in test], variants, runs,
                         baselines=baselines, log=typer.echo, test_stride=test_stride)
