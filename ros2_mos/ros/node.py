@@ -17,12 +17,14 @@ import threading
 import time
 from typing import Any
 
+import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ros2_mos.errors import ConfigError, ModelError, MosError, ScanError
+from ros2_mos.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
 from ros2_mos.ros.latest_queue import LatestQueue
 from ros2_mos.ros.params import NODE_NAME, OUTPUT_KEYS, PARAMS, ParamSpec, mos_config, node_settings
@@ -120,6 +122,18 @@ class MosNode(Node):
             self.get_logger().warning("tf2_msgs is not installed (e.g. PyPI wheels): the odom -> sensor transform is "
                                       f"not published on /tf; {s.topics['odometry']} carries the same pose")
         self._diag_pub = self.create_publisher(self.types.diagnostic_array, "/diagnostics", 10)
+        self._map: Any = None
+        self._map_lock = threading.Lock()
+        self._map_scans = 0
+        if s.static_map is not None:
+            from ros2_mos.apps.mapping import VoxelMap, VoxelMapConfig
+
+            sm = s.static_map
+            self._map = VoxelMap(VoxelMapConfig(sm.voxel_size, sm.max_radius, sm.max_points))
+            map_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.VOLATILE)
+            self._map_pub = self.create_publisher(self.types.point_cloud2, sm.topic, map_qos)
+            self._map_timer = self.create_timer(sm.publish_period, self._publish_map)
         self._sub = self.create_subscription(self.types.point_cloud2, s.input_topic, self._on_cloud,
                                              sensor_qos(s.reliable, s.depth))
         self._diag_timer = self.create_timer(s.diagnostics_period, self._publish_diagnostics)
@@ -182,7 +196,34 @@ class MosNode(Node):
             if pub is not None:
                 pub.publish(message)
         self._last_output = out
+        self._update_map(out)
         self.stats.on_processed(out.timings, (time.monotonic() - received) * 1e3, out.result.degraded)
+
+    # ------------------------------------------------------------------ cleaned local map
+    def _update_map(self, out: ScanOutput) -> None:
+        """Every n-th scan's static points into the voxel map (in the odometry frame)."""
+        if self._map is None:
+            return
+        if out.reset:
+            with self._map_lock:
+                self._map.clear()  # a reset starts a new odometry frame: old points would not line up
+            self._map_scans = 0
+        self._map_scans += 1
+        if (self._map_scans - 1) % self.settings.static_map.insert_every == 0:
+            static = out.static_points
+            with self._map_lock:
+                self._map.insert_scan(static, out.result.pose, stamp=out.stamp_ns * 1e-9)
+                self._map_stamp = out.stamp_ns
+
+    def _publish_map(self) -> None:
+        with self._map_lock:
+            if len(self._map) == 0:
+                return
+            points = np.array(self._map.points, dtype=np.float32)
+            stamp = self._map_stamp
+        header = m.make_header(self.types, stamp, self.settings.odom_frame)
+        msg = fill_xyzi(m.empty_cloud(self.types, header), points, field_factory=self.types.point_field)
+        self._map_pub.publish(msg)
 
     # ------------------------------------------------------------------ reporting
     def _publish_diagnostics(self) -> None:

@@ -104,6 +104,17 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("publish_tf", True, "publish odom -> sensor on /tf (where tf2_msgs is installed)"),
     ParamSpec("diagnostics_period", 1.0, "seconds between /diagnostics messages", min=0.1, max=3600.0),
     ParamSpec("log_period", 10.0, "seconds between statistics log lines; 0 = never", min=0.0),
+    # --- cleaned local map (the paper's clean-map application, online)
+    ParamSpec("static_map.enabled", False, "publish a voxel map of the static points around the sensor"),
+    ParamSpec("static_map.topic", "/mos/static_map", "output topic of the static map (PointCloud2 in odom_frame)"),
+    ParamSpec("static_map.voxel_size", 0.25, "static map: one point per voxel of this size (m)", min=0.01, max=10.0),
+    ParamSpec("static_map.max_radius", 60.0, "static map: points farther than this from the sensor are dropped (m)",
+              min=1.0),
+    ParamSpec("static_map.max_points", 300000, "static map: at most this many points (the nearest are kept)",
+              min=1000),
+    ParamSpec("static_map.insert_every", 3, "static map: add the static points of every n-th processed scan",
+              min=1, max=100),
+    ParamSpec("static_map.publish_period", 1.0, "static map: seconds between publications", min=0.1, max=3600.0),
 )
 
 SPECS: dict[str, ParamSpec] = {p.name: p for p in PARAMS}
@@ -128,6 +139,17 @@ class NodeSettings:
     publish_tf: bool
     diagnostics_period: float
     log_period: float
+    static_map: "StaticMapSettings | None" = None  # None: not published
+
+
+@dataclass(frozen=True)
+class StaticMapSettings:
+    topic: str
+    voxel_size: float
+    max_radius: float
+    max_points: int
+    insert_every: int
+    publish_period: float
 
 
 def defaults() -> dict[str, Any]:
@@ -204,7 +226,13 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
     """The node's own settings the parameters describe (ConfigError on invalid values)."""
     v = resolve(values)
     topics = {key: _check_topic(f"topics.{key}", v[f"topics.{key}"]) for key in OUTPUT_KEYS}
-    all_topics = [v["input_topic"], *topics.values()]
+    static_map = None
+    if v["static_map.enabled"]:
+        static_map = StaticMapSettings(
+            topic=_check_topic("static_map.topic", v["static_map.topic"]), voxel_size=v["static_map.voxel_size"],
+            max_radius=v["static_map.max_radius"], max_points=v["static_map.max_points"],
+            insert_every=v["static_map.insert_every"], publish_period=v["static_map.publish_period"])
+    all_topics = [v["input_topic"], *topics.values(), *([static_map.topic] if static_map else [])]
     if len(set(all_topics)) != len(all_topics):
         raise ConfigError(f"input and output topics must all differ, got {all_topics}")
     for frame_param in ("odom_frame", "sensor_frame"):
@@ -226,6 +254,7 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         publish_tf=v["publish_tf"],
         diagnostics_period=v["diagnostics_period"],
         log_period=v["log_period"],
+        static_map=static_map,
     )
 
 
@@ -285,6 +314,6 @@ def replace_model(values: Mapping[str, Any], model: str | None) -> dict[str, Any
 
 
 __all__ = [
-    "NODE_NAME", "OUTPUT_KEYS", "PARAMS", "SPECS", "NodeSettings", "ParamSpec", "check_value", "defaults",
+    "NODE_NAME", "OUTPUT_KEYS", "PARAMS", "SPECS", "NodeSettings", "ParamSpec", "StaticMapSettings", "check_value", "defaults",
     "describe", "load_params_file", "mos_config", "node_settings", "resolve", "replace_model",
 ]

@@ -40,6 +40,7 @@ class ScanOutput:
     frame_id: str
     result: MosResult
     valid_index: np.ndarray  # indices (into the input cloud) of the points that got a label
+    points: np.ndarray  # (N, 3) float32 decoded finite points, sensor frame; result.* index into these
     messages: dict[str, Any]
     timings: dict[str, float]
     notes: list[str] = field(default_factory=list)  # warnings to log (resets, degraded, ...)
@@ -49,6 +50,11 @@ class ScanOutput:
     @property
     def n_moving(self) -> int:
         return int(self.result.labels[self.result.valid].sum())
+
+    @property
+    def static_points(self) -> np.ndarray:
+        """(M, 3) sensor-frame points labelled static (for the cleaned map)."""
+        return self.points[self.result.valid & (self.result.labels == 0)]
 
 
 class ScanProcessor:
@@ -104,7 +110,7 @@ class ScanProcessor:
         timings = {"decode": t_decode, **{k: v for k, v in result.timings.items() if k != "total"},
                    "encode": (time.perf_counter() - t1) * 1e3}
         timings["total"] = (time.perf_counter() - t0) * 1e3
-        return ScanOutput(stamp, frame_id, result, kept, messages, timings, notes, reset, withhold)
+        return ScanOutput(stamp, frame_id, result, kept, points, messages, timings, notes, reset, withhold)
 
     def _build(self, wanted: frozenset[str] | None, stamp: int, frame_id: str, view: Any, kept: np.ndarray,
                moving: np.ndarray, result: MosResult, withhold: bool) -> dict[str, Any]:
