@@ -20,7 +20,15 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/models", glob(f"{PACKAGE}/models/*.onnx")),
     ],
-    install_requires=["setuptools", "numpy", "pyyaml", "typer", "tqdm"],
+    # The runtime (node, infer, eval, process, replay) needs no torch. rclpy and the message
+    # packages come from a ROS 2 Jazzy install or the ros-jazzy-* PyPI wheels (requirements.txt).
+    install_requires=["setuptools", "numpy", "pyyaml", "typer", "tqdm", "onnx", "onnxruntime", "kiss-icp",
+                      "rosbags"],
+    extras_require={
+        "sim": ["embreex", "trimesh"],
+        "train": ["torch==2.13.0", "onnxscript"],
+        "apps": ["trimesh", "pillow"],
+    },
     zip_safe=True,
     maintainer="ros2_mos developers",
     maintainer_email="dev@ros2-mos.invalid",
