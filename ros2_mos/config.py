@@ -185,8 +185,14 @@ class MosConfig:
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     threshold: float = 0.5
     intra_op_threads: int = 0
+    # 'numpy' (default, no torch) or 'torch': residual images and the kNN vote as torch ops on
+    # ``device`` ('auto' = CUDA when present) -- on a GPU these, not the CNN, dominate.
+    geometry_backend: str = "numpy"
+    device: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.geometry_backend not in ("numpy", "torch"):
+            raise ConfigError(f"geometry_backend must be 'numpy' or 'torch', got {self.geometry_backend!r}")
         if not 0.0 < self.threshold < 1.0:
             raise ConfigError(f"threshold must be in (0, 1), got {self.threshold}")
         if self.intra_op_threads < 0:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -95,6 +96,11 @@ class MosPipeline:
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mos-residuals") if self.n_past > 1 else None
         self._last_stamp: float | None = None
         self._last_pose: np.ndarray | None = None
+        self._torch: Any = None
+        if config.geometry_backend == "torch":
+            from ros2_mos.torch_ops import TorchGeometry  # the only place the runtime may import torch
+
+            self._torch = TorchGeometry(self.sensor, config.device)
 
     @property
     def n_past(self) -> int:
@@ -176,12 +182,16 @@ class MosPipeline:
         watch.lap("projection")
 
         past = self.buffer.newest_first()
-        if self.setup.kind == "residual":
+        if self.setup.kind == "residual" and self._torch is not None:
+            residuals = self._torch.residuals(image.range, pose, [(s.points, s.pose) for s in past], self.n_past,
+                                              self.config.residuals)
+            extra: np.ndarray | list[RangeImage] = residuals
+        elif self.setup.kind == "residual":
             residuals = residual_images(
                 image.range, pose, [(s.points, s.pose) for s in past], self.n_past, self.sensor, self.config.residuals,
                 map_fn=self._pool.map if self._pool is not None else map,
             )
-            extra: np.ndarray | list[RangeImage] = residuals
+            extra = residuals
         else:
             residuals = np.zeros((0, self.sensor.height, self.sensor.width), np.float32)
             extra = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor) for s in past]
@@ -191,7 +201,11 @@ class MosPipeline:
         prob_image = self.model.predict(network_input)
         watch.lap("inference")
 
-        point_prob = backproject(prob_image, image.range, image.pixels, self.config.postprocess, self.config.threshold)
+        if self._torch is not None and self.config.postprocess.mode == "knn":
+            point_prob = self._torch.knn(prob_image, image.range, image.pixels, self.config.postprocess)
+        else:
+            point_prob = backproject(prob_image, image.range, image.pixels, self.config.postprocess,
+                                     self.config.threshold)
         moving = point_prob >= self.config.threshold
         watch.lap("postprocess")
 

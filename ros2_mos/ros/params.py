@@ -66,6 +66,10 @@ PARAMS: tuple[ParamSpec, ...] = (
               min=0.0, max=1.0),
     ParamSpec("intra_op_threads", _DEF_MOS.intra_op_threads, "ONNX Runtime threads; 0 = runtime default",
               min=0, max=256),
+    ParamSpec("geometry_backend", _DEF_MOS.geometry_backend,
+              "residual images and kNN in numpy, or in torch (GPU path; needs torch installed)",
+              choices=("numpy", "torch")),
+    ParamSpec("device", _DEF_MOS.device, "torch device of the torch geometry backend: auto (CUDA when present), cpu, cuda"),
     ParamSpec("residuals.min_range", _DEF_RES.min_range, "residuals only where both ranges exceed this (m)", min=0.0),
     ParamSpec("residuals.max_range", _DEF_RES.max_range, "residuals only where both ranges are below this (m)",
               min=0.0),
@@ -213,6 +217,8 @@ def mos_config(values: Mapping[str, Any]) -> MosConfig:
         odometry=OdometryConfig(**odometry),
         threshold=v["threshold"],
         intra_op_threads=v["intra_op_threads"],
+        geometry_backend=v["geometry_backend"],
+        device=v["device"],
     )
 
 

@@ -1,0 +1,132 @@
+"""The GPU path of the per-scan geometry: residual images and kNN back-projection in torch.
+
+On a GPU the CNN takes a few ms and the numpy stages (re-projecting N past scans, the
+kNN vote over ~120k points) dominate; these are the same computations as
+:mod:`ros2_mos.residuals` and :mod:`ros2_mos.postprocess` written for torch tensors, so
+they run on CUDA.  Imported only when ``MosConfig.geometry_backend == 'torch'``: the
+default runtime never imports torch.  They also run on the CPU (used by the tests to
+check them against the numpy code).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ros2_mos.config import PostprocessConfig, ResidualConfig, SensorConfig
+from ros2_mos.projection import PixelIndex
+
+_EMPTY_RANGE = 1e9
+
+
+def pick_device(name: str = "auto") -> torch.device:
+    """'auto' takes CUDA when it is there, else the CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def range_image(points: torch.Tensor, sensor: SensorConfig) -> torch.Tensor:
+    """(H, W) closest range per pixel (0 where empty) of (N, 3) points, like ``projection.project_range``."""
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    r = torch.sqrt(x * x + y * y + z * z)
+    pitch = torch.asin(torch.clamp(z / r, -1.0, 1.0))
+    yaw = torch.atan2(y, x)
+    u_f = 0.5 * (1.0 - yaw / math.pi) * sensor.width
+    v_f = (1.0 - (pitch - sensor.fov_down) / sensor.fov) * sensor.height
+    inside = (v_f >= 0) & (v_f < sensor.height) & (r > sensor.min_range) & (r < sensor.max_range)
+    u = torch.clamp(torch.floor(u_f), 0, sensor.width - 1).long()
+    v = torch.clamp(torch.floor(v_f), 0, sensor.height - 1).long()
+    pix = (v * sensor.width + u)[inside]
+    best = torch.full((sensor.height * sensor.width,), float("inf"), device=points.device, dtype=points.dtype)
+    best.scatter_reduce_(0, pix, r[inside], reduce="amin")
+    best[torch.isinf(best)] = 0.0
+    return best.view(sensor.height, sensor.width)
+
+
+def residual_images(current_range: torch.Tensor, current_pose: np.ndarray, past: list[tuple[torch.Tensor, np.ndarray]],
+                    n: int, sensor: SensorConfig, config: ResidualConfig) -> torch.Tensor:
+    """(n, H, W) residuals against past scans (device tensors, own frame) and their world poses."""
+    device = current_range.device
+    out = torch.zeros((n, sensor.height, sensor.width), device=device, dtype=torch.float32)
+    lo, hi = config.min_range, config.max_range
+    cur_ok = (current_range > lo) & (current_range < hi)
+    inv_current = np.linalg.inv(current_pose)
+    for j, (points, pose) in enumerate(past[:n]):
+        t = torch.as_tensor(inv_current @ pose, dtype=torch.float32, device=device)
+        moved = points @ t[:3, :3].T + t[:3, 3]
+        past_range = range_image(moved, sensor)
+        valid = cur_ok & (past_range > lo) & (past_range < hi)
+        diff = torch.abs(current_range - past_range) / torch.where(valid, current_range, torch.ones_like(current_range))
+        out[j] = torch.where(valid, diff, torch.zeros_like(diff))
+    return out
+
+
+def _inverse_gaussian(window: int, sigma: float, device: torch.device) -> torch.Tensor:
+    offs = torch.arange(window, dtype=torch.float64) - window // 2
+    g = torch.exp(-(offs[:, None] ** 2 + offs[None, :] ** 2) / (2 * sigma * sigma))
+    return (1.0 - g / g.sum()).float().reshape(-1).to(device)
+
+
+def _wrap_pad(image: torch.Tensor, half: int, fill: float) -> torch.Tensor:
+    padded = torch.nn.functional.pad(image[None, None], (0, 0, half, half), value=fill)[0, 0]
+    return torch.cat([padded[:, -half:], padded, padded[:, :half]], dim=1) if half else padded
+
+
+def knn_backproject(prob_image: torch.Tensor, range_img: torch.Tensor, pixels: PixelIndex,
+                    config: PostprocessConfig) -> torch.Tensor:
+    """Per-point moving probability: the same vote as ``postprocess.knn_backproject`` (all points)."""
+    device = prob_image.device
+    h, w = range_img.shape
+    half = config.window // 2
+    rng = _wrap_pad(torch.where(range_img > 0, range_img, torch.full_like(range_img, _EMPTY_RANGE)), half, _EMPTY_RANGE)
+    prob = _wrap_pad(prob_image, half, 0.0)
+    pw = w + 2 * half
+    offs = torch.arange(-half, half + 1, device=device)
+    window_offsets = (offs.repeat_interleave(config.window) * pw + offs.repeat(config.window))[None, :]
+    v = torch.as_tensor(pixels.v, device=device).long()
+    u = torch.as_tensor(pixels.u, device=device).long()
+    point_range = torch.as_tensor(pixels.range, device=device)
+    flat = ((v + half) * pw + u + half)[:, None] + window_offsets
+    dist = torch.abs(rng.reshape(-1)[flat] - point_range[:, None]) * _inverse_gaussian(config.window, config.sigma, device)
+    dist[:, (config.window * config.window) // 2] = -1.0
+    kth = torch.kthvalue(dist, config.k, dim=1, keepdim=True).values if config.k < dist.shape[1] else None
+    keep = dist <= config.cutoff
+    if kth is not None:
+        keep &= dist <= kth
+    probs = prob.reshape(-1)[flat]
+    return (probs * keep).sum(dim=1) / keep.sum(dim=1)
+
+
+class TorchGeometry:
+    """Residuals and kNN on a torch device for :class:`~ros2_mos.pipeline.MosPipeline` (numpy in, numpy out).
+
+    Past scans are moved to the device once and kept there while they are in the buffer.
+    """
+
+    def __init__(self, sensor: SensorConfig, device: str = "auto") -> None:
+        self.sensor = sensor
+        self.device = pick_device(device)
+        self._cache: dict[int, torch.Tensor] = {}
+
+    def _on_device(self, points: np.ndarray) -> torch.Tensor:
+        key = id(points)
+        if key not in self._cache:
+            self._cache[key] = torch.from_numpy(points).to(self.device)
+        return self._cache[key]
+
+    def residuals(self, current_range: np.ndarray, pose: np.ndarray, past: list[tuple[np.ndarray, np.ndarray]],
+                  n: int, config: ResidualConfig) -> np.ndarray:
+        live = {id(p) for p, _ in past[:n]}
+        self._cache = {k: v for k, v in self._cache.items() if k in live}
+        cur = torch.from_numpy(current_range).to(self.device)
+        on_device = [(self._on_device(p), q) for p, q in past[:n]]
+        return residual_images(cur, pose, on_device, n, self.sensor, config).cpu().numpy()
+
+    def knn(self, prob_image: np.ndarray, range_img: np.ndarray, pixels: PixelIndex,
+            config: PostprocessConfig) -> np.ndarray:
+        prob = torch.from_numpy(prob_image).to(self.device)
+        rng = torch.from_numpy(range_img).to(self.device)
+        return knn_backproject(prob, rng, pixels, config).cpu().numpy().astype(np.float32)
