@@ -53,7 +53,8 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, threads: int) -> BenchResult:
+def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, threads: int,
+                    geometry: str = "numpy") -> BenchResult:
     from ros2_mos.datasets.bags import iter_pointclouds
     from ros2_mos.pipeline import MosPipeline
     from ros2_mos.ros.messages import MessageTypes
@@ -62,6 +63,7 @@ def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, thread
 
     values = replace_model(defaults(), model)
     values["intra_op_threads"] = threads
+    values["geometry_backend"] = geometry
     pipeline = MosPipeline(mos_config(values))
     processor = ScanProcessor(pipeline, node_settings(values), MessageTypes.rosbags())
     timings: list[dict[str, float]] = []
@@ -75,16 +77,18 @@ def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, thread
         raise ValueError(f"{bag}: fewer than {warmup + 1} clouds")
     meta = pipeline.model.metadata
     label = f"{meta.network} {meta.input.label} ({Path(pipeline.model.path).name})"
-    notes = f"{pipeline.sensor.height}x{pipeline.sensor.width}, {pipeline.model.provider}, ORT threads {threads or 'default'}"
+    notes = (f"{pipeline.sensor.height}x{pipeline.sensor.width}, {pipeline.model.provider}, ORT threads "
+             f"{threads or 'default'}, geometry {geometry}")
     return summarise(label, timings, notes)
 
 
-def bench_pipeline(bag: Path, model: Path | None, scans: int = 50, warmup: int = 5, threads: int = 0) -> BenchResult:
+def bench_pipeline(bag: Path, model: Path | None, scans: int = 50, warmup: int = 5, threads: int = 0,
+                   geometry: str = "numpy") -> BenchResult:
     """Time the node's pipeline over the bag's first clouds, in a fresh process."""
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
         return pool.submit(_bench_pipeline, str(bag), None if model is None else str(model), scans, warmup,
-                           threads).result()
+                           threads, geometry).result()
 
 
 def format_table(results: list[BenchResult]) -> str:
