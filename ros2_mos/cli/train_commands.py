@@ -59,13 +59,15 @@ def train(
 def export(
     checkpoint: Path = typer.Argument(..., help="Training checkpoint (best.pt / last.pt)"),
     out: Path = typer.Option(..., "--out", help="ONNX file to write"),
+    threshold: Optional[float] = typer.Option(None, help="Store a validation-tuned moving threshold in the metadata"),
 ) -> None:
     """Export a checkpoint to ONNX (softmax head, metadata inside), checked against PyTorch."""
     from ros2_mos.training.trainer import export_checkpoint
 
     if not checkpoint.is_file():
         fail(f"checkpoint not found: {checkpoint}")
-    report = export_checkpoint(checkpoint, out)
+    extra = None if threshold is None else {"recommended_threshold": threshold}
+    report = export_checkpoint(checkpoint, out, extra=extra)
     typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.2f} MB, ONNX vs PyTorch max abs diff {report.max_abs_diff:.1e})")
 
 

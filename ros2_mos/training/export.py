@@ -126,6 +126,7 @@ def export_onnx(
     tmp = Path(tmp_name)
     try:
         onnx.save(proto, tmp)
+        tmp.chmod(0o644)  # mkstemp makes 0600 files; a model is meant to be read by others
         max_diff = 0.0
         if check:
             max_diff = _check_with_onnxruntime(tmp, example.numpy(), reference.numpy())

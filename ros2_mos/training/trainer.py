@@ -494,8 +494,13 @@ def metadata_from_checkpoint(state: Mapping[str, Any]) -> ModelMetadata:
     )
 
 
-def export_checkpoint(checkpoint: str | Path, out: str | Path, sensor: SensorConfig | None = None):
-    """Export a training checkpoint to ONNX with its metadata (optionally for another image size)."""
+def export_checkpoint(checkpoint: str | Path, out: str | Path, sensor: SensorConfig | None = None,
+                      extra: Mapping[str, Any] | None = None):
+    """Export a training checkpoint to ONNX with its metadata (optionally for another image size).
+
+    ``extra`` entries are added to the metadata's ``extra`` (e.g. a validation-tuned
+    ``recommended_threshold``).
+    """
     from ros2_mos.training.export import export_onnx
 
     state = load_checkpoint(checkpoint)
@@ -503,4 +508,6 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path, sensor: SensorCon
     meta = metadata_from_checkpoint(state)
     if sensor is not None:
         meta = dataclasses.replace(meta, sensor=sensor)
+    if extra:
+        meta.extra.update(extra)
     return export_onnx(model, meta, out)
