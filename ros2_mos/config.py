@@ -175,7 +175,9 @@ class MosConfig:
     """Everything the pipeline needs besides the model file.
 
     ``sensor`` None means: take the sensor the model was trained for (from its metadata).
-    ``threshold`` is the moving probability above which a point is labelled moving.
+    ``threshold`` is the moving probability at or above which a point is labelled moving;
+    0 takes the model's own recommended threshold (tuned on its validation data, stored
+    in its metadata), or 0.5 for a model without one.
     """
 
     model: str | None = None
@@ -183,7 +185,7 @@ class MosConfig:
     residuals: ResidualConfig = field(default_factory=ResidualConfig)
     postprocess: PostprocessConfig = field(default_factory=PostprocessConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
-    threshold: float = 0.5
+    threshold: float = 0.0
     intra_op_threads: int = 0
     # 'numpy' (default, no torch) or 'torch': residual images and the kNN vote as torch ops on
     # ``device`` ('auto' = CUDA when present) -- on a GPU these, not the CNN, dominate.
@@ -193,8 +195,8 @@ class MosConfig:
     def __post_init__(self) -> None:
         if self.geometry_backend not in ("numpy", "torch"):
             raise ConfigError(f"geometry_backend must be 'numpy' or 'torch', got {self.geometry_backend!r}")
-        if not 0.0 < self.threshold < 1.0:
-            raise ConfigError(f"threshold must be in (0, 1), got {self.threshold}")
+        if not 0.0 <= self.threshold < 1.0:
+            raise ConfigError(f"threshold must be in (0, 1), or 0 for the model's own, got {self.threshold}")
         if self.intra_op_threads < 0:
             raise ConfigError(f"intra_op_threads must be >= 0 (0 = runtime default), got {self.intra_op_threads}")
 

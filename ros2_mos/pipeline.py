@@ -88,6 +88,9 @@ class MosPipeline:
                 f"was trained for {meta.sensor.name} at {meta.sensor.height} x {meta.sensor.width}; "
                 "use a model trained for this sensor"
             )
+        recommended = float(meta.extra.get("recommended_threshold", 0.5))
+        #: The moving-probability threshold in use: the configured one, or the model's own.
+        self.threshold = config.threshold or recommended
         self.means = np.asarray(meta.means, np.float32)
         self.stds = np.asarray(meta.stds, np.float32)
         self.odometry = KissIcpOdometry(config.odometry)
@@ -205,8 +208,8 @@ class MosPipeline:
             point_prob = self._torch.knn(prob_image, image.range, image.pixels, self.config.postprocess)
         else:
             point_prob = backproject(prob_image, image.range, image.pixels, self.config.postprocess,
-                                     self.config.threshold)
-        moving = point_prob >= self.config.threshold
+                                     self.threshold)
+        moving = point_prob >= self.threshold
         watch.lap("postprocess")
 
         if self.config.odometry.map_update == "static":
@@ -222,7 +225,7 @@ class MosPipeline:
         labels[valid] = moving
         probability = np.zeros(n, np.float32)
         probability[valid] = point_prob
-        mask_image = ((prob_image >= self.config.threshold) & image.mask).astype(np.uint8)
+        mask_image = ((prob_image >= self.threshold) & image.mask).astype(np.uint8)
         watch.total()
         return MosResult(
             labels=labels,

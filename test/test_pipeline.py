@@ -205,3 +205,20 @@ def test_pose_jump_limit_grows_with_the_time_since_the_last_scan(pipeline):
     res = pipeline.process(seq[1][0], seq[1][1], 0.3, pose=moved)
     assert not any("jumped" in w for w in res.warnings)
     assert res.n_past_available == 1
+
+
+def test_threshold_zero_takes_the_models_recommended_threshold(tmp_path):
+    import onnx
+
+    from ros2_mos.metadata import METADATA_KEY, ModelMetadata
+
+    path = make_threshold_model(tmp_path / "m.onnx")
+    assert MosPipeline(MosConfig(model=str(path))).threshold == 0.5  # no recommendation: 0.5
+    model = onnx.load(str(path))
+    prop = next(p for p in model.metadata_props if p.key == METADATA_KEY)
+    meta = ModelMetadata.from_json(prop.value)
+    meta.extra["recommended_threshold"] = 0.8
+    prop.value = meta.to_json()
+    onnx.save(model, str(path))
+    assert MosPipeline(MosConfig(model=str(path))).threshold == 0.8
+    assert MosPipeline(MosConfig(model=str(path), threshold=0.3)).threshold == 0.3

@@ -62,7 +62,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("sensor.fov_down_deg", -25.0, "custom sensor: elevation of the bottom row (deg)", min=-90.0, max=90.0),
     ParamSpec("sensor.min_range", 0.0, "custom sensor: points closer than this are left out (m)", min=0.0),
     ParamSpec("sensor.max_range", 120.0, "custom sensor: points farther than this are left out (m)", min=0.0),
-    ParamSpec("threshold", _DEF_MOS.threshold, "moving probability at or above which a point is labelled moving",
+    ParamSpec("threshold", _DEF_MOS.threshold, "moving probability at or above which a point is labelled moving; 0 = the model's recommended threshold (0.5 if none)",
               min=0.0, max=1.0),
     ParamSpec("intra_op_threads", _DEF_MOS.intra_op_threads, "ONNX Runtime threads; 0 = runtime default",
               min=0, max=256),
