@@ -63,6 +63,9 @@ class MosModel:
             options.intra_op_num_threads = intra_op_threads
         options.inter_op_num_threads = 1
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        # ORT's worker threads spin after each run by default; the pipeline's other stages
+        # (KISS-ICP, numpy) need those cores right after inference, so let the threads sleep.
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         available = ort.get_available_providers()
         chosen = providers or [p for p in PROVIDER_PREFERENCE if p in available]
         try:

@@ -23,7 +23,16 @@ def transform_points(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
     """Apply a 4x4 rigid transform to (N, 3) points (float32 out, computed in float64)."""
     pts = check_points(points)
     t = np.asarray(transform, dtype=np.float64)
-    return (pts @ t[:3, :3].T.astype(pts.dtype) + t[:3, 3].astype(pts.dtype)).astype(np.float32, copy=False)
+    # Element-wise rather than a matmul: a (N, 3) @ (3, 3) product goes to the BLAS, whose
+    # threads then spin and steal the cores KISS-ICP and ONNX Runtime need next.
+    out = np.empty((len(pts), 3), dtype=np.float32)
+    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    for i in range(3):
+        np.multiply(x, np.float32(t[i, 0]), out=out[:, i], casting="unsafe")
+        out[:, i] += y * np.float32(t[i, 1])
+        out[:, i] += z * np.float32(t[i, 2])
+        out[:, i] += np.float32(t[i, 3])
+    return out
 
 
 def relative_pose(current_pose: np.ndarray, past_pose: np.ndarray) -> np.ndarray:
