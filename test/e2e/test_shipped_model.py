@@ -1,0 +1,34 @@
+"""The shipped default model on a held-out simulated street: a real quality check of what ships."""
+
+from __future__ import annotations
+
+import pytest
+
+from ros2_mos.config import MosConfig
+from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
+from ros2_mos.evaluation import predict_sequence
+from ros2_mos.inference import default_model_path
+from ros2_mos.metrics import MovingIoU
+
+# Measured 2026-11-25 on this held-out street (sequence name and seed never used in training):
+# see README "Measured figures". The bound leaves room for platform differences, not for a regression.
+MIN_IOU = 0.35
+
+
+@pytest.mark.skipif(not default_model_path().is_file(), reason="no shipped model")
+def test_shipped_model_finds_moving_objects_on_a_held_out_street(tmp_path):
+    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.sim import sequence_dir, simulate_sequence
+
+    simulate_sequence(tmp_path, "heldout", 30, "benchmark", seed=4242, sensor="hdl64")
+    seq = SemanticKittiSequence(sequence_dir(tmp_path, "heldout"))
+    pipeline = MosPipeline(MosConfig())
+    assert pipeline.model.metadata.sensor.name == "hdl64" and pipeline.threshold == pytest.approx(0.9)
+    score = MovingIoU()
+    for pred in predict_sequence(pipeline, seq):
+        assert pred.result.labels.shape == pred.gt_classes.shape
+        if pred.result.residuals_complete:
+            score.update(pred.result.labels, pred.gt_classes)
+    print(f"shipped model, held-out street: moving IoU {100 * score.iou:.1f} (TP {score.tp}, FP {score.fp}, FN {score.fn})")
+    assert score.tp > 0
+    assert score.iou > MIN_IOU
