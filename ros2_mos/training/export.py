@@ -27,8 +27,8 @@ from torch import nn
 from ros2_mos.errors import ModelError
 from ros2_mos.metadata import METADATA_KEY, ModelMetadata
 
-INPUT_NAME = "input"
-OUTPUT_NAME = "probability"
+# The tensor names are the contract with the runtime: one definition, in the runtime.
+from ros2_mos.inference import INPUT_NAME, OUTPUT_NAME  # noqa: E402
 DEFAULT_OPSET = 17
 
 
@@ -154,14 +154,7 @@ def _check_with_onnxruntime(path: Path, example: np.ndarray, reference: np.ndarr
 
 
 def read_metadata(path: str | Path) -> ModelMetadata:
-    """The ModelMetadata stored in an exported model (for tests and tools; the runtime has its own)."""
-    import onnx
+    """The ModelMetadata stored in an exported model: the runtime's own reader, re-exported for training tools."""
+    from ros2_mos.inference import read_metadata as runtime_read_metadata
 
-    path = Path(path)
-    if not path.is_file():
-        raise ModelError(f"model file not found: {path}")
-    proto = onnx.load(str(path), load_external_data=False)
-    for entry in proto.metadata_props:
-        if entry.key == METADATA_KEY:
-            return ModelMetadata.from_json(entry.value)
-    raise ModelError(f"{path}: no {METADATA_KEY!r} metadata in the ONNX model")
+    return runtime_read_metadata(path)
