@@ -25,8 +25,8 @@ def fmt(v: float, d: int = 2) -> str:
 
 
 def main(poses_dir: Path, dataset: Path) -> None:
-    print(f"| sequence | mask | t_err % (100..800 m) | r_err deg/100m (100..800 m) | segments | "
-          f"t_err % (10..80 m) | r_err deg/100m (10..80 m) | ATE m |")
+    print("| sequence | mask | t_err % (100..800 m) | r_err deg/100m (100..800 m) | segments | "
+          "t_err % (10..80 m) | r_err deg/100m (10..80 m) | ATE m |")
     print("|---|---|---|---|---|---|---|---|")
     for seq_dir in sequence_dirs(dataset):
         seq = SemanticKittiSequence(seq_dir)

@@ -29,7 +29,7 @@ from ros2_mos.metrics import MovingIoU
 from ros2_mos.postprocess import backproject
 from ros2_mos.projection import PixelIndex
 from ros2_mos.training.baselines import tune_region_growing, tune_residual_threshold
-from ros2_mos.training.dataset import CacheSpec, MosDataset, SequenceCache, build_caches
+from ros2_mos.training.dataset import MosDataset, SequenceCache, build_caches
 from ros2_mos.training.trainer import TrainConfig, Trainer, load_checkpoint, model_from_checkpoint
 
 

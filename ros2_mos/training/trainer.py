@@ -37,11 +37,9 @@ from ros2_mos.training.dataset import (
     AugmentConfig,
     CacheSpec,
     MosDataset,
-    SequenceCache,
     build_caches,
     channel_statistics,
     class_counts,
-    default_workers,
 )
 from ros2_mos.training.losses import MosLoss, inverse_frequency_weights
 from ros2_mos.training.nets import build_network
