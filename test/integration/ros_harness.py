@@ -6,6 +6,8 @@ import os
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -97,3 +99,17 @@ class Harness:
         self.thread.join(timeout=5)
         self.node.destroy_node()
         self.peer.destroy_node()
+
+
+@contextmanager
+def running_harness(domain_id: int, overrides: dict[str, Any]) -> Iterator[Harness]:
+    """A Harness in its own rclpy context on an isolated domain, torn down whatever happens."""
+    isolate_ros(domain_id)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    h = Harness(context, overrides)
+    try:
+        yield h
+    finally:
+        h.close()
+        rclpy.try_shutdown(context=context)

@@ -20,7 +20,7 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from conftest import make_threshold_model  # noqa: E402
-from ros_harness import BASE_STAMP, TYPES, Harness, cloud, isolate_ros  # noqa: E402
+from ros_harness import running_harness, BASE_STAMP, TYPES, cloud  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
 from ros2_mos.errors import ScanError  # noqa: E402
@@ -89,13 +89,9 @@ def sequence():
 
 @pytest.fixture(scope="module")
 def harness(tiny_model_path):
-    isolate_ros(DOMAIN)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    h = Harness(context, {"model": str(tiny_model_path), "diagnostics_period": 0.2, "reset_after_gap": 1.0})
-    yield h
-    h.close()
-    rclpy.try_shutdown(context=context)
+    with running_harness(DOMAIN, {"model": str(tiny_model_path), "diagnostics_period": 0.2,
+                                   "reset_after_gap": 1.0}) as h:
+        yield h
 
 
 def _status(msg):

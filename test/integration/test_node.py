@@ -16,7 +16,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from ros_harness import OUTPUTS, TYPES, BASE_STAMP, Harness, cloud, isolate_ros  # noqa: E402
+from ros_harness import running_harness, OUTPUTS, TYPES, BASE_STAMP, cloud, isolate_ros  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
 from ros2_mos.config import MosConfig  # noqa: E402
@@ -35,13 +35,9 @@ def sequence():
 
 @pytest.fixture(scope="module")
 def harness(tiny_model_path):
-    isolate_ros(DOMAIN)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    h = Harness(context, {"model": str(tiny_model_path), "diagnostics_period": 0.2, "reset_after_gap": 5.0})
-    yield h
-    h.close()
-    rclpy.try_shutdown(context=context)
+    with running_harness(DOMAIN, {"model": str(tiny_model_path), "diagnostics_period": 0.2,
+                                   "reset_after_gap": 5.0}) as h:
+        yield h
 
 
 def test_outputs_stamps_frames_counts_and_offline_labels(harness, sequence, tiny_model_path):

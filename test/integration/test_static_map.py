@@ -11,7 +11,7 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from ros_harness import TYPES, BASE_STAMP, Harness, cloud, isolate_ros  # noqa: E402
+from ros_harness import TYPES, BASE_STAMP, cloud, running_harness  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
 from ros2_mos.apps.mapping import VoxelMap, VoxelMapConfig  # noqa: E402
@@ -24,21 +24,19 @@ DOMAIN = 20 + os.getpid() % 150
 
 
 def test_static_map_is_published_without_the_moving_car(tiny_model_path):
-    isolate_ros(DOMAIN)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    h = Harness(context, {"model": str(tiny_model_path), "static_map.enabled": True, "static_map.insert_every": 1,
-                          "static_map.publish_period": 0.2, "static_map.voxel_size": 0.1})
-    maps: list = []
-    got = threading.Event()
+    overrides = {"model": str(tiny_model_path), "static_map.enabled": True, "static_map.insert_every": 1,
+                 "static_map.publish_period": 0.2, "static_map.voxel_size": 0.1}
+    with running_harness(DOMAIN, overrides) as h:
+        maps: list = []
+        got = threading.Event()
 
-    def on_map(msg) -> None:
-        maps.append(msg)
-        got.set()
+        def on_map(msg) -> None:
+            maps.append(msg)
+            got.set()
 
-    h.peer.create_subscription(TYPES.point_cloud2, "/mos/static_map", on_map,
-                               QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
-    try:
+        h.peer.create_subscription(TYPES.point_cloud2, "/mos/static_map", on_map,
+                                   QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
+
         seq = street_sequence(6)
         for i, (pts, rem, _, _) in enumerate(seq):
             assert h.feed(cloud(BASE_STAMP + i * 100_000_000, pts, rem)) is not None
@@ -60,6 +58,3 @@ def test_static_map_is_published_without_the_moving_car(tiny_model_path):
         assert moving_total > 100
         np.testing.assert_allclose(np.sort(xyz, axis=0), np.sort(static_map.points, axis=0), atol=1e-4)
         assert len(full_map) > len(static_map)  # the moving points were kept out
-    finally:
-        h.close()
-        rclpy.try_shutdown(context=context)
