@@ -8,7 +8,7 @@ import pytest
 from ros2_mos.config import SensorConfig
 from ros2_mos.errors import ScanError
 from ros2_mos.postprocess import nearest_backproject
-from ros2_mos.projection import finite_mask, pixel_index, project, project_range
+from ros2_mos.projection import azimuth, finite_mask, pixel_index, project, project_range
 
 # 10 rows of 1 degree each from +5 to -5 deg, 8 columns of 45 degrees.
 SENSOR = SensorConfig("test", height=10, width=8, fov_up_deg=5.0, fov_down_deg=-5.0, min_range=0.0, max_range=100.0)
@@ -98,3 +98,53 @@ def test_finite_mask_drops_nan_inf_and_zero_range():
 def test_wrong_shapes_and_dtypes_raise_scan_error(bad):
     with pytest.raises(ScanError, match="points"):
         pixel_index(bad, SENSOR)
+
+
+@pytest.mark.parametrize(
+    "x, y, expected",
+    [
+        (1.0, 0.0, 0.0),
+        (1.0, 1.0, math.pi / 4),  # the octant boundary |y| = |x|
+        (0.0, 2.0, math.pi / 2),
+        (-1.0, 1.0, 3 * math.pi / 4),
+        (-1.0, 0.0, math.pi),  # +0 y: +π, as arctan2
+        (-1.0, -0.0, -math.pi),  # -0 y: -π, as arctan2
+        (-1.0, -1.0, -3 * math.pi / 4),
+        (0.0, -3.0, -math.pi / 2),
+        (2.0, -1.0, math.atan2(-1.0, 2.0)),
+        (1e-30, 1e-30, math.pi / 4),  # tiny but non-zero coordinates
+        (0.0, 0.0, 0.0),  # the origin (never projected): 0, not NaN
+    ],
+)
+def test_azimuth_matches_atan2_by_hand(x, y, expected):
+    got = azimuth(np.array([x], np.float32), np.array([y], np.float32))[0]
+    assert got == pytest.approx(expected, abs=2e-7)
+    assert math.copysign(1.0, got) == math.copysign(1.0, expected)
+
+
+def test_azimuth_is_as_accurate_as_float32_arctan2():
+    rng = np.random.default_rng(0)
+    xy = (rng.normal(size=(2, 200_000)) * rng.choice([1e-3, 1.0, 80.0], size=(1, 200_000))).astype(np.float32)
+    exact = np.arctan2(xy[1].astype(np.float64), xy[0].astype(np.float64))
+    float32_error = np.abs(np.arctan2(xy[1], xy[0]) - exact).max()  # ~1.2e-7: rounding to float32 near ±π
+    # A pixel of a 2048-column image is 3e-3 rad wide: 4e-7 rad moves one point in ~10^4 by a column at most.
+    assert np.abs(azimuth(xy[0], xy[1]) - exact).max() <= float32_error + 2.5e-7
+
+
+def test_pixels_agree_with_the_reference_formula_on_a_dense_scan():
+    """The fast trigonometry must put (almost) every point on the pixel eq. 1 gives in float64."""
+    rng = np.random.default_rng(1)
+    n = 100_000
+    az = rng.uniform(-np.pi, np.pi, n)
+    el = np.radians(rng.uniform(-6.0, 6.0, n))
+    r = rng.uniform(1.0, 80.0, n)
+    pts = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], 1).astype(np.float32)
+    p64 = pts.astype(np.float64)
+    rr = np.linalg.norm(p64, axis=1)
+    u_ref = np.clip(np.floor(0.5 * (1 - np.arctan2(p64[:, 1], p64[:, 0]) / np.pi) * SENSOR.width), 0, SENSOR.width - 1)
+    v_ref = np.floor((1 - (np.arcsin(p64[:, 2] / rr) - SENSOR.fov_down) / SENSOR.fov) * SENSOR.height)
+    inside = (v_ref >= 0) & (v_ref < SENSOR.height)
+    pix = pixel_index(pts, SENSOR)
+    assert (pix.in_image == inside).mean() > 0.9999
+    assert (pix.u == u_ref).mean() > 0.9999
+    assert (pix.v[inside] == v_ref[inside]).mean() > 0.9999
