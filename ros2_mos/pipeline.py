@@ -19,6 +19,7 @@ from ros2_mos.config import MosConfig, SensorConfig
 from ros2_mos.errors import ConfigError, ScanError
 from ros2_mos.features import assemble_input
 from ros2_mos.inference import MosModel
+from ros2_mos.memory import retain_freed_memory
 from ros2_mos.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
 from ros2_mos.postprocess import backproject
 from ros2_mos.projection import RangeImage, check_points, finite_mask, project
@@ -78,6 +79,8 @@ class MosPipeline:
 
     def __init__(self, config: MosConfig = MosConfig(), model: MosModel | None = None) -> None:
         self.config = config
+        if config.tune_malloc:
+            retain_freed_memory()
         self.model = model if model is not None else MosModel(config.model, intra_op_threads=config.intra_op_threads)
         meta = self.model.metadata
         self.setup = meta.input

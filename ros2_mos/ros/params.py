@@ -70,6 +70,8 @@ PARAMS: tuple[ParamSpec, ...] = (
               "residual images and kNN in numpy, or in torch (GPU path; needs torch installed)",
               choices=("numpy", "torch")),
     ParamSpec("device", _DEF_MOS.device, "torch device of the torch geometry backend: auto (CUDA when present), cpu, cuda"),
+    ParamSpec("tune_malloc", _DEF_MOS.tune_malloc,
+              "keep freed heap memory mapped (glibc mallopt, whole process): saves ~7 ms of page faults per scan"),
     ParamSpec("residuals.min_range", _DEF_RES.min_range, "residuals only where both ranges exceed this (m)", min=0.0),
     ParamSpec("residuals.max_range", _DEF_RES.max_range, "residuals only where both ranges are below this (m)",
               min=0.0),
@@ -219,6 +221,7 @@ def mos_config(values: Mapping[str, Any]) -> MosConfig:
         intra_op_threads=v["intra_op_threads"],
         geometry_backend=v["geometry_backend"],
         device=v["device"],
+        tune_malloc=v["tune_malloc"],
     )
 
 
