@@ -42,19 +42,28 @@ def _wrap_pad(image: np.ndarray, half: int, fill: float) -> np.ndarray:
     return np.concatenate([padded[:, w - half :], padded, padded[:, :half]], axis=1) if half else padded
 
 
-def _window_extrema(prob_image: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel min and max of the probability over the window (empty pixels included)."""
+def _window_mixed(prob_image: np.ndarray, window: int, threshold: float) -> np.ndarray:
+    """Pixels whose window holds probabilities on both sides of ``threshold`` (empty pixels included).
+
+    Thresholding first turns the window's min/max into a window "any" of two boolean
+    images, and "any" over a square is separable: one pass along the (wrapped) columns,
+    one along the (padded) rows -- 2 x window array operations instead of window².
+    """
     half = window // 2
     h, w = prob_image.shape
-    lo = _wrap_pad(prob_image, half, np.inf)
-    hi = _wrap_pad(prob_image, half, -np.inf)
-    wmin = np.full((h, w), np.inf, np.float32)
-    wmax = np.full((h, w), -np.inf, np.float32)
-    for dr in range(window):
-        for dc in range(window):
-            np.minimum(wmin, lo[dr : dr + h, dc : dc + w], out=wmin)
-            np.maximum(wmax, hi[dr : dr + h, dc : dc + w], out=wmax)
-    return wmin, wmax
+    flags = np.empty((2, h, w), dtype=bool)
+    np.less(prob_image, threshold, out=flags[0])
+    np.logical_not(flags[0], out=flags[1])
+    cols = np.concatenate([flags[:, :, w - half :], flags, flags[:, :, :half]], axis=2) if half else flags
+    across = cols[:, :, :w].copy()
+    for dc in range(1, window):
+        across |= cols[:, :, dc : dc + w]
+    rows = np.zeros((2, h + 2 * half, w), dtype=bool)
+    rows[:, half : half + h] = across
+    both = rows[:, :h].copy()
+    for dr in range(1, window):
+        both |= rows[:, dr : dr + h]
+    return both[0] & both[1]
 
 
 def knn_backproject(
@@ -75,9 +84,9 @@ def knn_backproject(
         return np.empty(0, np.float32)
     if threshold is None:
         return _knn_vote(prob_image, range_image, pixels, config)
-    out = prob_image[pixels.v, pixels.u].astype(np.float32)
-    wmin, wmax = _window_extrema(prob_image, config.window)
-    mixed = np.flatnonzero((wmin[pixels.v, pixels.u] < threshold) & (wmax[pixels.v, pixels.u] >= threshold))
+    flat = pixels.v.astype(np.intp) * prob_image.shape[1] + pixels.u
+    out = np.take(prob_image.ravel(), flat).astype(np.float32, copy=False)
+    mixed = np.flatnonzero(np.take(_window_mixed(prob_image, config.window, threshold).ravel(), flat))
     if len(mixed):
         subset = PixelIndex(pixels.u[mixed], pixels.v[mixed], pixels.range[mixed], pixels.in_image[mixed])
         out[mixed] = _knn_vote(prob_image, range_image, subset, config)
