@@ -30,6 +30,7 @@ class KissIcpOdometry:
         cfg.data.min_range = config.min_range
         cfg.data.deskew = config.deskew
         cfg.mapping.voxel_size = config.voxel_size if config.voxel_size is not None else config.max_range / 100.0
+        cfg.mapping.max_points_per_voxel = config.max_points_per_voxel
         self.config = config
         self._kiss_config = cfg
         self._kiss_class = KissICP

@@ -85,6 +85,8 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("odometry.max_range", _DEF_ODOM.max_range, "KISS-ICP: ignore points beyond (m)", min=0.0),
     ParamSpec("odometry.min_range", _DEF_ODOM.min_range, "KISS-ICP: ignore points closer than (m)", min=0.0),
     ParamSpec("odometry.voxel_size", 0.0, "KISS-ICP voxel size (m); 0 = max_range / 100", min=0.0),
+    ParamSpec("odometry.max_points_per_voxel", _DEF_ODOM.max_points_per_voxel,
+              "KISS-ICP: map points kept per voxel (KISS-ICP's own default is 20; fewer is faster)", min=1, max=1000),
     ParamSpec("odometry.deskew", _DEF_ODOM.deskew, "KISS-ICP constant-velocity deskewing"),
     ParamSpec("odometry.max_translation_jump", _DEF_ODOM.max_translation_jump,
               "a larger motion per 0.1 s between two processed scans (m) is an odometry failure: the scan buffer is reset", min=0.0),
