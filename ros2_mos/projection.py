@@ -97,6 +97,11 @@ def pixel_index(points: np.ndarray, sensor: SensorConfig) -> PixelIndex:
     pts = check_points(points)
     # Contiguous float32 columns: every ufunc below then runs on SIMD-friendly unit strides.
     x, y, z = np.array(pts.T, dtype=np.float32, order="C")
+    return pixel_index_columns(x, y, z, sensor)
+
+
+def pixel_index_columns(x: np.ndarray, y: np.ndarray, z: np.ndarray, sensor: SensorConfig) -> PixelIndex:
+    """:func:`pixel_index` of points given as three contiguous float32 coordinate arrays."""
     rho = x * x
     rho += y * y
     r = z * z
@@ -178,7 +183,13 @@ def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> 
 
 def project_range(points: np.ndarray, sensor: SensorConfig) -> np.ndarray:
     """Only the (H, W) range image (0 where empty): what a past scan needs for its residual."""
-    pixels = pixel_index(points, sensor)
+    x, y, z = np.array(check_points(points).T, dtype=np.float32, order="C")
+    return project_range_columns(x, y, z, sensor)
+
+
+def project_range_columns(x: np.ndarray, y: np.ndarray, z: np.ndarray, sensor: SensorConfig) -> np.ndarray:
+    """:func:`project_range` of points given as three contiguous float32 coordinate arrays."""
+    pixels = pixel_index_columns(x, y, z, sensor)
     candidates, pix = _flat_pixels(pixels, sensor.width)
     best = np.full(sensor.height * sensor.width, np.inf, dtype=np.float32)
     np.minimum.at(best, pix, pixels.range[candidates])

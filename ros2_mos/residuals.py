@@ -16,22 +16,29 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 
 from ros2_mos.config import ResidualConfig, SensorConfig
-from ros2_mos.projection import check_points, project_range
+from ros2_mos.projection import check_points, project_range_columns
 
 
 def transform_points(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 rigid transform to (N, 3) points (float32 out, computed in float64)."""
-    pts = check_points(points)
+    """Apply a 4x4 rigid transform to (N, 3) points (float32 out)."""
+    return np.ascontiguousarray(transform_columns(check_points(points), transform).T)
+
+
+def transform_columns(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
+    """The transformed (N, 3) points as a contiguous (3, N) float32 array: x, y, z rows.
+
+    Element-wise rather than a matmul: a (N, 3) @ (3, 3) product goes to the BLAS, whose
+    threads then spin and steal the cores KISS-ICP and ONNX Runtime need next.  The
+    columns are made contiguous first so that the twelve multiply-adds are SIMD loops.
+    """
     t = np.asarray(transform, dtype=np.float64)
-    # Element-wise rather than a matmul: a (N, 3) @ (3, 3) product goes to the BLAS, whose
-    # threads then spin and steal the cores KISS-ICP and ONNX Runtime need next.
-    out = np.empty((len(pts), 3), dtype=np.float32)
-    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    x, y, z = np.array(points.T, dtype=np.float32, order="C")
+    out = np.empty((3, len(x)), dtype=np.float32)
     for i in range(3):
-        np.multiply(x, np.float32(t[i, 0]), out=out[:, i], casting="unsafe")
-        out[:, i] += y * np.float32(t[i, 1])
-        out[:, i] += z * np.float32(t[i, 2])
-        out[:, i] += np.float32(t[i, 3])
+        np.multiply(x, np.float32(t[i, 0]), out=out[i])
+        out[i] += y * np.float32(t[i, 1])
+        out[i] += z * np.float32(t[i, 2])
+        out[i] += np.float32(t[i, 3])
     return out
 
 
@@ -54,8 +61,8 @@ def past_range_image(
     past_points: np.ndarray, past_pose: np.ndarray, current_pose: np.ndarray, sensor: SensorConfig
 ) -> np.ndarray:
     """The range image of a past scan as seen from the current scan's pose."""
-    moved = transform_points(past_points, relative_pose(current_pose, past_pose))
-    return project_range(moved, sensor)
+    x, y, z = transform_columns(check_points(past_points, "past points"), relative_pose(current_pose, past_pose))
+    return project_range_columns(x, y, z, sensor)
 
 
 def residual_images(
