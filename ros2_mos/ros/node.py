@@ -176,7 +176,7 @@ class MosNode(Node):
     def _handle(self, msg: Any, received: float) -> None:
         log = self.get_logger()
         try:
-            out = self.processor.process(msg)
+            out = self.processor.process(msg, self._wanted())
         except SkippedScan as exc:
             self.stats.on_skipped(exc.reason, str(exc))
             log.warning(str(exc), throttle_duration_sec=1.0)
@@ -198,6 +198,17 @@ class MosNode(Node):
         self._last_output = out
         self._update_map(out)
         self.stats.on_processed(out.timings, (time.monotonic() - received) * 1e3, out.result.degraded)
+
+    def _wanted(self) -> frozenset[str]:
+        """The outputs to build: clouds and images only while someone subscribes to them.
+
+        Each full-size cloud costs ~1-2 ms to build and more to serialise, on a CPU the
+        pipeline needs; odometry and tf are tiny and always published (tf has no subscriber
+        count that means anything).
+        """
+        lazy = {"static_points", "moving_points", "labels", "mask", "range_image"}
+        return frozenset(key for key, pub in self._pubs.items()
+                         if key not in lazy or pub.get_subscription_count() > 0)
 
     # ------------------------------------------------------------------ cleaned local map
     def _update_map(self, out: ScanOutput) -> None:

@@ -50,8 +50,7 @@ class Harness:
         self.received: dict[str, list[Any]] = defaultdict(list)
         self._cond = threading.Condition()
         qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        for key, typ in OUTPUTS.items():
-            self.peer.create_subscription(typ, f"/mos/{key}", lambda msg, k=key: self._on(k, msg), qos)
+        self.subscriptions = {key: self.subscribe(key) for key in OUTPUTS}
         self.peer.create_subscription(TYPES.diagnostic_array, "/diagnostics", lambda msg: self._on("diag", msg), 10)
         self.pub = self.peer.create_publisher(TYPES.point_cloud2, "/points", qos)
         self.executor = MultiThreadedExecutor(num_threads=2, context=context)
@@ -60,6 +59,22 @@ class Harness:
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
         self.thread.start()
         self._wait(lambda: self.pub.get_subscription_count() > 0, 5.0)
+        # The node builds clouds and images only for matched subscribers: wait until all are matched.
+        self.wait_matched(OUTPUTS)
+
+    def subscribe(self, key: str) -> Any:
+        """The peer's subscription to the output ``key`` (its messages go to ``received[key]``)."""
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        return self.peer.create_subscription(OUTPUTS[key], f"/mos/{key}", lambda msg: self._on(key, msg), qos)
+
+    def wait_matched(self, keys: Any, matched: bool = True, timeout: float = 5.0) -> bool:
+        """Wait until the node's publishers of ``keys`` have (or no longer have) a subscriber."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if all((self.node._pubs[k].get_subscription_count() > 0) == matched for k in keys):
+                return True
+            time.sleep(0.01)
+        return False
 
     def _on(self, key: str, msg: Any) -> None:
         with self._cond:

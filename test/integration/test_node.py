@@ -218,6 +218,31 @@ def test_full_queue_drops_the_oldest(harness, sequence):
     assert last.stamp_ns == stamp + 3 * PERIOD
 
 
+def test_clouds_and_images_are_built_only_while_someone_subscribes(harness, sequence):
+    """Nobody listens to /mos/static_points or /mos/mask: the node neither builds nor publishes them."""
+    h = harness
+    unwatched = ("static_points", "mask")
+    for key in unwatched:
+        h.peer.destroy_subscription(h.subscriptions.pop(key))
+    try:
+        assert h.wait_matched(unwatched, matched=False)
+        assert h.node._wanted().isdisjoint(unwatched)
+        h.node.processor.reset()
+        before = h.node.stats.snapshot().processed
+        h.pub.publish(cloud(BASE_STAMP + 7 * 10**12, *sequence[0][:2]))
+        deadline = time.monotonic() + 10
+        while h.node.stats.snapshot().processed == before:
+            assert time.monotonic() < deadline, "the scan was not processed"
+            time.sleep(0.01)
+        built = set(h.node._last_output.messages)
+        assert built.isdisjoint(unwatched)
+        assert {"labels", "moving_points", "range_image", "odometry"} <= built
+    finally:
+        for key in unwatched:
+            h.subscriptions[key] = h.subscribe(key)
+        assert h.wait_matched(unwatched)
+
+
 # ----------------------------------------------------------------------------- separate processes
 
 def _env(domain: int) -> dict[str, str]:
