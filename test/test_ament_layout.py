@@ -39,6 +39,7 @@ def test_colcon_build_installs_executables_where_ros2_run_looks(tmp_path):
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / "ros2_mos").is_file()
     assert (prefix / "share" / "ros2_mos" / "package.xml").is_file()
     assert (prefix / "share" / "ros2_mos" / "config" / "mos.yaml").is_file()
+    assert (prefix / "share" / "ros2_mos" / "config" / "fastdds_large_messages.xml").is_file()
     assert (prefix / "share" / "ros2_mos" / "launch" / "mos.launch.py").is_file()
     env = dict(os.environ, AMENT_PREFIX_PATH=str(prefix))
     lookup = subprocess.run(

@@ -22,10 +22,17 @@ import numpy as np
 
 
 def isolate_ros_domain() -> str:
-    """A random ROS_DOMAIN_ID, localhost only, for this process and the ones it starts."""
+    """A random ROS_DOMAIN_ID, localhost only, for this process and the ones it starts.
+
+    Also selects the shipped Fast DDS profile for large messages (unless the user set one),
+    as we recommend for any deployment that moves full-size clouds between processes.
+    """
+    from ros2_mos.ros.dds import use_large_message_profile
+
     domain = str(random.randint(100, 200))
     os.environ["ROS_DOMAIN_ID"] = domain
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    use_large_message_profile()
     return domain
 
 

@@ -246,9 +246,16 @@ def test_clouds_and_images_are_built_only_while_someone_subscribes(harness, sequ
 # ----------------------------------------------------------------------------- separate processes
 
 def _env(domain: int) -> dict[str, str]:
-    """The parent's environment (both or neither bootstrap variable, as it has them) plus isolation."""
+    """The parent's environment (both or neither bootstrap variable, as it has them) plus isolation.
+
+    The child processes use the shipped large-message Fast DDS profile and the listener in this
+    process does not: the mixed setup users have when only some of their processes set it.
+    """
+    from ros2_mos.ros.dds import use_large_message_profile
+
     env = dict(os.environ)
     env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    use_large_message_profile(env)
     return env
 
 
