@@ -221,6 +221,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     domain = args.domain if args.domain is not None else 100 + os.getpid() % 100
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    from ros2_mos.ros.dds import use_large_message_profile
+
+    use_large_message_profile()  # full-size clouds across processes, as we recommend to users
     env = dict(os.environ, PYTHONUNBUFFERED="1")  # inherits both bootstrap variables or neither
     params = tmp / "params.yaml"
     params.write_text(f"mos_node:\n  ros__parameters:\n    model: {model}\n    qos:\n      reliability: reliable\n"
