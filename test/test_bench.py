@@ -31,3 +31,20 @@ def test_reference_pipeline_labels_every_point():
         assert labels.shape == (len(points),)
         assert set(np.unique(labels.numpy() if hasattr(labels, "numpy") else labels)) <= {1, 2}
         assert {"residuals", "projection", "inference", "postprocess", "total"} <= set(timings)
+
+
+def test_untrained_network_is_exported_for_timing_with_its_setup(tmp_path):
+    import pytest
+    import typer
+
+    from ros2_mos.cli.bench_command import _export_untrained
+    from ros2_mos.inference import read_metadata
+
+    path = _export_untrained("fastmos:2", tmp_path)
+    meta = read_metadata(path)
+    assert (meta.network, meta.input.kind, meta.input.n_past) == ("fastmos", "residual", 2)
+    assert (meta.sensor.height, meta.sensor.width) == (64, 2048)
+    assert "untrained" in meta.trained_on
+    for bad in ("nonet:8", "salsanext", "salsanext:x"):
+        with pytest.raises(typer.BadParameter):
+            _export_untrained(bad, tmp_path)

@@ -33,6 +33,9 @@ def bench(
     reference_scans: int = typer.Option(5, min=1, help="Scans timed for the (slow) reference"),
     node: bool = typer.Option(True, help="Also run mos_node as a process with the bag replayed at 10 Hz and 20 Hz"),
     node_model: Optional[Path] = typer.Option(None, help="Model for the node runs (default: the shipped default)"),
+    untrained: Optional[list[str]] = typer.Option(
+        None, help="Also time NETWORK:N (e.g. salsanext:8) exported with random weights: speed does not depend "
+                   "on the weights, so this times networks nobody trained here (needs torch)"),
     out: Optional[Path] = typer.Option(None, help="Also write the report (Markdown) to this file"),
 ) -> None:
     """Median / p95 ms per stage, end-to-end latency, Hz and peak RSS; reference ratio; the node under replay."""
@@ -41,6 +44,8 @@ def bench(
 
     seq_dir, bag = ensure_sequence(data, BENCH_SEQUENCE, scans + 5, BENCH_SEED)
     models = list(model) if model else shipped_models()
+    if untrained:
+        models += [_export_untrained(spec, data / "untrained") for spec in untrained]
     lines = [f"# ros2-mos bench, {datetime.date.today().isoformat()}",
              f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, load average "
              f"{os.getloadavg()[0]:.1f}; {scans} scans of {seq_dir} (64 x 2048 HDL-64, simulated)", ""]
@@ -68,6 +73,27 @@ def bench(
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text("\n".join(lines) + "\n")
         typer.echo(f"wrote {out}")
+
+
+def _export_untrained(spec: str, folder: Path) -> Path:
+    """An ONNX file of NETWORK with N residual images and random weights, for timing only."""
+    from ros2_mos.config import sensor_preset
+    from ros2_mos.features import InputSetup
+    from ros2_mos.metadata import ModelMetadata
+    from ros2_mos.training.export import export_onnx
+    from ros2_mos.training.nets import build_network, network_names
+
+    name, _, n = spec.partition(":")
+    if name not in network_names() or not n.isdigit():
+        raise typer.BadParameter(f"{spec!r}: expected NETWORK:N with NETWORK one of {', '.join(network_names())}")
+    setup = InputSetup("residual", int(n))
+    meta = ModelMetadata(network=name, input=setup, sensor=sensor_preset("hdl64"),
+                         trained_on="untrained (random weights): timing only")
+    path = folder / f"{name}-residual{n}-untrained.onnx"
+    if not path.is_file():
+        typer.echo(f"exporting an untrained {name} {setup.label} to {path} ...")
+        export_onnx(build_network(name, setup.channels), meta, path)
+    return path
 
 
 def _bench_reference(seq_dir: Path, scans: int):
