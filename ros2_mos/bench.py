@@ -50,6 +50,18 @@ def summarise(label: str, timings: list[dict[str, float]], notes: str = "") -> B
 
 
 def peak_rss_mb() -> float:
+    """This process's peak resident size (MB).
+
+    From ``VmHWM``, the high-water mark of the current address space: ``ru_maxrss`` survives
+    ``exec`` on Linux, so a worker spawned by a big parent would report the parent's peak.
+    """
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
