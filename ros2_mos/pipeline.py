@@ -149,8 +149,9 @@ class MosPipeline:
             xyz = np.array(pts, dtype=np.float32, order="C")
             e = np.nan_to_num(rem, nan=0.0, posinf=0.0, neginf=0.0)
         else:
-            xyz = np.ascontiguousarray(pts[valid], dtype=np.float32)
-            e = np.nan_to_num(rem[valid], nan=0.0, posinf=0.0, neginf=0.0)
+            kept = np.flatnonzero(valid)
+            xyz = np.take(pts, kept, axis=0).astype(np.float32, copy=False)  # a row gather, not a 2-D mask
+            e = np.nan_to_num(rem[kept], nan=0.0, posinf=0.0, neginf=0.0)
 
         warnings: list[str] = []
         if self._last_stamp is not None and timestamp <= self._last_stamp:

@@ -283,7 +283,7 @@ def decode_xyz_intensity(
     finite &= np.isfinite(xyz[:, 1])
     finite &= np.isfinite(xyz[:, 2])
     valid_index = np.flatnonzero(finite)
-    points = np.ascontiguousarray(xyz[valid_index]) if valid_index.size != view.size else xyz
+    points = np.take(xyz, valid_index, axis=0) if valid_index.size != view.size else xyz
 
     name = next((n for n in intensity_names if _field(view, n) is not None), None)
     if name is None:
