@@ -153,6 +153,10 @@ class OdometryConfig:
     # KISS-ICP's cap on map points per voxel (its default is 20). Registration cost grows with it;
     # 10 was 40% faster and more accurate on the simulated sequences (benchmarks/bench.md).
     max_points_per_voxel: int = 10
+    # KISS-ICP sees every k-th point of the scan: it voxelises them at 0.5 m and registers ~2.5k
+    # points anyway, so half a 120k-point scan covers the same voxels. Measured on the 9 simulated
+    # sequences x 200 scans: 29.2 -> 25.2 ms per scan, t_err 0.75 -> 0.66 %, ATE 0.160 -> 0.146 m.
+    point_stride: int = 2
     deskew: bool = False
     # A relative motion larger than this per 0.1 s (one scan at 10 Hz; 50 m/s) is treated as a
     # failure of the odometry: the scan buffer is reset instead of producing garbage residuals.
@@ -167,6 +171,8 @@ class OdometryConfig:
             raise ConfigError(f"odometry map_update must be 'all' or 'static', got {self.map_update!r}")
         if not (0.0 <= self.min_range < self.max_range):
             raise ConfigError(f"odometry: need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
+        if not 1 <= self.point_stride <= 16:
+            raise ConfigError(f"odometry point_stride must be in 1..16, got {self.point_stride}")
         if self.max_points_per_voxel < 1:
             raise ConfigError(f"odometry max_points_per_voxel must be >= 1, got {self.max_points_per_voxel}")
         if self.voxel_size is not None and self.voxel_size <= 0:

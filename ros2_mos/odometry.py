@@ -52,8 +52,9 @@ class KissIcpOdometry:
         Call :meth:`update_map` afterwards (with all or only static points) before the next scan.
         """
         kiss = self._kiss
-        frame = np.asarray(points, dtype=np.float64)
-        stamps = np.asarray([] if timestamps is None else timestamps, dtype=np.float64)
+        stride = self.config.point_stride
+        frame = np.asarray(points[::stride], dtype=np.float64)
+        stamps = np.asarray([] if timestamps is None else np.asarray(timestamps)[::stride], dtype=np.float64)
         frame = kiss.preprocessor.preprocess(frame, stamps, kiss.last_delta)
         source, frame_downsample = kiss.voxelize(frame)
         sigma = kiss.adaptive_threshold.get_threshold()
@@ -74,7 +75,8 @@ class KissIcpOdometry:
     def update_map(self, static_points: np.ndarray | None = None) -> None:
         """Add the last estimated scan to the local map: all its points, or only ``static_points``.
 
-        ``static_points`` are in the scan's own sensor frame; they are downsampled like KISS-ICP does.
+        ``static_points`` are in the scan's own sensor frame; they are thinned by ``point_stride`` and
+        downsampled like KISS-ICP does, as the scan was in :meth:`estimate`.
         """
         kiss = self._kiss
         if static_points is None:
@@ -82,7 +84,7 @@ class KissIcpOdometry:
                 return
             frame = self._pending_frame
         else:
-            _, frame = kiss.voxelize(np.asarray(static_points, dtype=np.float64))
+            _, frame = kiss.voxelize(np.asarray(static_points[:: self.config.point_stride], dtype=np.float64))
         kiss.local_map.update(frame, kiss.last_pose)
         self._pending_frame = None
 

@@ -26,3 +26,19 @@ def test_kiss_icp_follows_the_ground_truth_of_a_simulated_drive() -> None:
     assert travelled > 10.0, "the ego vehicle should drive in this sequence"
     error = np.linalg.norm(est[-1, :3, 3] - gt[-1, :3, 3])
     assert error < 0.05 * travelled, f"KISS-ICP drifted {error:.2f} m over {travelled:.1f} m"
+
+
+def test_kiss_icp_registers_every_kth_point_only():
+    """point_stride thins what KISS-ICP sees (its map), not what MOS labels."""
+    from ros2_mos.config import OdometryConfig
+    from ros2_mos.odometry import KissIcpOdometry
+
+    rng = np.random.default_rng(0)
+    scan = rng.uniform(-30, 30, size=(20_000, 3))
+    sizes = {}
+    for stride in (1, 4):
+        odom = KissIcpOdometry(OdometryConfig(point_stride=stride))
+        odom.register(scan)
+        sizes[stride] = len(odom._kiss.local_map.point_cloud())
+    # Every 4th point of a uniform cloud fills fewer 0.5 m voxels than all of them do.
+    assert sizes[4] < sizes[1]

@@ -87,6 +87,8 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("odometry.voxel_size", 0.0, "KISS-ICP voxel size (m); 0 = max_range / 100", min=0.0),
     ParamSpec("odometry.max_points_per_voxel", _DEF_ODOM.max_points_per_voxel,
               "KISS-ICP: map points kept per voxel (KISS-ICP's own default is 20; fewer is faster)", min=1, max=1000),
+    ParamSpec("odometry.point_stride", _DEF_ODOM.point_stride,
+              "KISS-ICP registers every k-th point of the scan (1 = all; MOS still labels every point)", min=1, max=16),
     ParamSpec("odometry.deskew", _DEF_ODOM.deskew, "KISS-ICP constant-velocity deskewing"),
     ParamSpec("odometry.max_translation_jump", _DEF_ODOM.max_translation_jump,
               "a larger motion per 0.1 s between two processed scans (m) is an odometry failure: the scan buffer is reset", min=0.0),
