@@ -130,9 +130,9 @@ def _bench_node(bag: Path, model: Optional[Path]) -> list[str]:
 
     isolate_ros_domain()
     lines = ["## mos_node as a process, the bag replayed by `ros2-mos replay` (stamps = publication time)", "",
-             "| replay rate | published | labels received | node processed | node dropped | "
+             "| replay rate | published | node received | node processed | node dropped | labels received | "
              "node processing mean (ms) | node receive -> publish mean (ms) | "
-             "latency stamp -> /mos/labels median / p95 (ms) |", "|---|---|---|---|---|---|---|---|"]
+             "latency stamp -> /mos/labels median / p95 (ms) |", "|---|---|---|---|---|---|---|---|---|"]
     for hz, rate in ((10, 1.0), (20, 2.0)):
         params = {"qos.reliability": "reliable", "qos.depth": "1"}
         if model is not None:
@@ -142,8 +142,9 @@ def _bench_node(bag: Path, model: Optional[Path]) -> list[str]:
             report = replay_through_node(bag, rate, restamp=True)
         lat = np.array(report.latency_ms) if report.latency_ms else np.zeros(1)
         d = report.diagnostics
-        lines.append(f"| {hz} Hz | {report.sent} | {len(report.labels)} | {d.get('processed', '?')} | "
-                     f"{d.get('dropped', '?')} | {d.get('total_ms_mean', '?')} | {d.get('latency_ms_mean', '?')} | "
+        lines.append(f"| {hz} Hz | {report.sent} | {d.get('received', '?')} | {d.get('processed', '?')} | "
+                     f"{d.get('dropped', '?')} | {len(report.labels)} | {d.get('total_ms_mean', '?')} | "
+                     f"{d.get('latency_ms_mean', '?')} | "
                      f"{np.median(lat):.0f} / {np.percentile(lat, 95):.0f} |")
     return lines + [
         "",
