@@ -151,7 +151,7 @@ class OdometryConfig:
     min_range: float = 0.0
     voxel_size: float | None = None
     # KISS-ICP's cap on map points per voxel (its default is 20). Registration cost grows with it;
-    # 10 was 40% faster and more accurate on the simulated sequences (benchmarks/bench.md).
+    # 10 was ~40% faster and more accurate on the 9 simulated sequences (README, Speed).
     max_points_per_voxel: int = 10
     # KISS-ICP sees every k-th point of the scan: it voxelises them at 0.5 m and registers ~2.5k
     # points anyway, so half a 120k-point scan covers the same voxels. Measured on the 9 simulated
