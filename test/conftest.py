@@ -45,6 +45,24 @@ def make_threshold_model(path: Path, sensor: SensorConfig = TEST_SENSOR, n_past:
     return path
 
 
+def make_wrong_channels_model(path: Path) -> Path:
+    """A network taking 7 channels (N=2) whose metadata claims N=5 (10 channels): the wrong input size."""
+    import dataclasses
+
+    import onnx
+
+    from ros2_mos.metadata import METADATA_KEY, ModelMetadata
+
+    make_threshold_model(path, n_past=2)
+    model = onnx.load(str(path))
+    prop = next(p for p in model.metadata_props if p.key == METADATA_KEY)
+    meta = ModelMetadata.from_json(prop.value)
+    meta.input = dataclasses.replace(meta.input, n_past=5)
+    prop.value = meta.to_json()
+    onnx.save(model, str(path))
+    return path
+
+
 @pytest.fixture(scope="session")
 def tiny_model_path(tmp_path_factory) -> Path:
     return make_threshold_model(tmp_path_factory.mktemp("models") / "threshold.onnx")

@@ -1,11 +1,9 @@
 """MosPipeline on analytic scenes with a real ONNX model: shapes, degradation, errors, odometry."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from conftest import TEST_SENSOR, make_threshold_model
+from conftest import TEST_SENSOR, make_threshold_model, make_wrong_channels_model
 from scenes import street_sequence
 from ros2_mos.config import MosConfig, OdometryConfig, PostprocessConfig, SensorConfig
 from ros2_mos.errors import ConfigError, ModelError, ScanError
@@ -105,17 +103,7 @@ def test_truncated_model_file_is_a_model_error(tmp_path, tiny_model_path):
 
 
 def test_model_whose_channels_disagree_with_its_metadata_is_refused(tmp_path):
-    import onnx
-
-    from ros2_mos.metadata import METADATA_KEY, ModelMetadata
-
-    path = make_threshold_model(tmp_path / "m.onnx", n_past=2)
-    model = onnx.load(str(path))
-    prop = next(p for p in model.metadata_props if p.key == METADATA_KEY)
-    meta = ModelMetadata.from_json(prop.value)
-    meta.input = dataclasses.replace(meta.input, n_past=5)
-    prop.value = meta.to_json()
-    onnx.save(model, str(path))
+    path = make_wrong_channels_model(tmp_path / "m.onnx")
     with pytest.raises(ModelError, match="7 input channels|implies 10"):
         MosModel(path)
 

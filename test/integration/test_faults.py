@@ -8,7 +8,6 @@ processes), bounded queue and memory, and SIGTERM in test_soak.py.)
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import subprocess
 import sys
@@ -19,7 +18,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from conftest import make_threshold_model  # noqa: E402
+from conftest import make_wrong_channels_model  # noqa: E402
 from ros_harness import running_harness, BASE_STAMP, TYPES, cloud  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
@@ -40,28 +39,12 @@ def _env(domain: int) -> dict[str, str]:
 
 # ----------------------------------------------------------------------------- start-up of the process
 
-def _wrong_channels_model(path: Path) -> Path:
-    """A network taking 7 channels (N=2) whose metadata claims N=5 (10 channels): the wrong input size."""
-    import onnx
-
-    from ros2_mos.metadata import METADATA_KEY, ModelMetadata
-
-    make_threshold_model(path, n_past=2)
-    model = onnx.load(str(path))
-    prop = next(p for p in model.metadata_props if p.key == METADATA_KEY)
-    meta = ModelMetadata.from_json(prop.value)
-    meta.input = dataclasses.replace(meta.input, n_past=5)
-    prop.value = meta.to_json()
-    onnx.save(model, str(path))
-    return path
-
-
 def test_broken_models_and_mismatched_sensors_stop_the_process_with_a_clear_message(tmp_path, tiny_model_path):
     truncated = tmp_path / "truncated.onnx"
     truncated.write_bytes(tiny_model_path.read_bytes()[: len(tiny_model_path.read_bytes()) // 2])
     cases = {
         "truncated model": (["-p", f"model:={truncated}"], "ONNX Runtime cannot load it"),
-        "wrong input size": (["-p", f"model:={_wrong_channels_model(tmp_path / 'wrong.onnx')}"],
+        "wrong input size": (["-p", f"model:={make_wrong_channels_model(tmp_path / 'wrong.onnx')}"],
                              "network takes 7 input channels but its metadata"),
         "hdl64 preset on a 32-beam model": (["-p", f"model:={tiny_model_path}", "-p", "sensor.preset:=hdl64"],
                                             "sensor hdl64 projects to 64 x 2048 but the model was trained for test32"),
