@@ -20,40 +20,108 @@ DEFAULT_MEANS = (12.12, 10.88, 0.23, -1.04, 0.21)
 DEFAULT_STDS = (12.32, 11.47, 6.91, 0.86, 0.16)
 
 
+#: The per-pixel channels of a projected scan, in the order of the model's means/stds.
+IMAGE_CHANNELS = ("range", "x", "y", "z", "remission")
+
+
 @dataclass(frozen=True)
 class InputSetup:
-    """``residual``: current frame + ``n_past`` residual images; ``frames``: current + ``n_past`` past frames."""
+    """What the network sees: the current scan's image channels plus the past.
+
+    ``kind`` ``residual``: ``n_past`` residual images against the scans ``past_offsets``
+    back (default 1..n_past, newest first), as ``|r_0 - r_j| / r_0`` or, with ``signed``,
+    ``(r_j - r_0) / r_0``: positive where the past ray passed farther (the space the current
+    point occupies was free: something moved in), negative where something stood closer
+    (it moved away, or the current point was hidden behind it).  ``frames``: the current
+    frame plus ``n_past`` past frames re-projected into it.
+
+    ``image_channels`` picks which of r, x, y, z, remission of each frame the network
+    takes (LiDAR-MOS takes all five; a model without remission does not depend on a
+    driver's intensity scale).
+    """
 
     kind: str = "residual"
     n_past: int = 1
+    past_offsets: tuple[int, ...] = ()
+    signed: bool = False
+    image_channels: tuple[str, ...] = IMAGE_CHANNELS
 
     def __post_init__(self) -> None:
+        # JSON metadata brings lists back: keep the dataclass hashable and comparable.
+        object.__setattr__(self, "past_offsets", tuple(int(o) for o in self.past_offsets))
+        object.__setattr__(self, "image_channels", tuple(str(c) for c in self.image_channels))
         if self.kind not in ("residual", "frames"):
             raise ConfigError(f"input kind must be 'residual' or 'frames', got {self.kind!r}")
         if not 0 <= self.n_past <= 32:
             raise ConfigError(f"n_past must be in 0..32, got {self.n_past}")
+        if self.past_offsets:
+            if self.kind != "residual":
+                raise ConfigError("past_offsets apply to residual inputs only")
+            if len(self.past_offsets) != self.n_past:
+                raise ConfigError(f"past_offsets {list(self.past_offsets)} must list n_past={self.n_past} offsets")
+            if self.past_offsets[0] < 1 or any(b <= a for a, b in zip(self.past_offsets, self.past_offsets[1:])):
+                raise ConfigError(f"past_offsets must be increasing integers >= 1, got {list(self.past_offsets)}")
+            if self.past_offsets[-1] > 32:
+                raise ConfigError(f"past_offsets reach at most 32 scans back, got {self.past_offsets[-1]}")
+        if self.signed and self.kind != "residual":
+            raise ConfigError("signed applies to residual inputs only")
+        unknown = [c for c in self.image_channels if c not in IMAGE_CHANNELS]
+        if unknown or not self.image_channels or len(set(self.image_channels)) != len(self.image_channels):
+            raise ConfigError(f"image_channels must be distinct names out of {list(IMAGE_CHANNELS)}, "
+                              f"got {list(self.image_channels)}")
+        if self.kind == "frames" and self.image_channels != IMAGE_CHANNELS:
+            raise ConfigError("frames inputs take all five image channels")
+
+    @property
+    def offsets(self) -> tuple[int, ...]:
+        """How many scans back each past input is (1 = the previous scan)."""
+        return self.past_offsets or tuple(range(1, self.n_past + 1))
+
+    @property
+    def history(self) -> int:
+        """How many past scans must be kept to build the input."""
+        return max(self.offsets, default=0)
+
+    @property
+    def channel_index(self) -> tuple[int, ...]:
+        """Indices of the used image channels in r, x, y, z, remission."""
+        return tuple(IMAGE_CHANNELS.index(c) for c in self.image_channels)
+
+    @property
+    def uses_remission(self) -> bool:
+        return "remission" in self.image_channels
 
     @property
     def channels(self) -> int:
-        return 5 + self.n_past if self.kind == "residual" else 5 * (1 + self.n_past)
+        frame = len(self.image_channels)
+        return frame + self.n_past if self.kind == "residual" else frame * (1 + self.n_past)
 
     @property
     def label(self) -> str:
         """Short name as in the paper's tables."""
         if self.n_past == 0:
             return "one frame"
-        return f"residual N={self.n_past}" if self.kind == "residual" else f"{1 + self.n_past} frames"
+        if self.kind == "frames":
+            return f"{1 + self.n_past} frames"
+        text = f"{'signed ' if self.signed else ''}residual N={self.n_past}"
+        return text + (f" at {','.join(map(str, self.offsets))}" if self.past_offsets else "")
 
 
-def frame_channels(image: RangeImage, means: np.ndarray, stds: np.ndarray) -> np.ndarray:
-    """(5, H, W) normalised r, x, y, z, e, zero where the image is empty (as LiDAR-MOS masks them)."""
+def frame_channels(
+    image: RangeImage, means: np.ndarray, stds: np.ndarray, index: tuple[int, ...] = (0, 1, 2, 3, 4)
+) -> np.ndarray:
+    """(len(index), H, W) normalised channels out of r, x, y, z, e, zero where the image is empty.
+
+    LiDAR-MOS masks its inputs the same way.
+    """
     h, w = image.range.shape
-    out = np.empty((5, h, w), dtype=np.float32)
-    out[0] = image.range
-    out[1:4] = np.moveaxis(image.xyz, -1, 0)
-    out[4] = image.remission
-    out -= np.asarray(means, np.float32)[:, None, None]
-    out /= np.asarray(stds, np.float32)[:, None, None]
+    sources = (image.range, image.xyz[..., 0], image.xyz[..., 1], image.xyz[..., 2], image.remission)
+    means = np.asarray(means, np.float32)
+    stds = np.asarray(stds, np.float32)
+    out = np.empty((len(index), h, w), dtype=np.float32)
+    for k, c in enumerate(index):
+        np.subtract(sources[c], means[c], out=out[k])
+        out[k] /= stds[c]
     out *= image.mask[None]
     return out
 
@@ -67,18 +135,24 @@ def assemble_input(
 ) -> np.ndarray:
     """(C, H, W) float32 network input for one scan.
 
-    ``extra`` is the (n_past, H, W) residual stack for ``residual`` setups, or the past
-    frames re-projected into the current frame (newest first) for ``frames`` setups;
-    a missing past frame is all zeros, like a missing residual.
+    ``extra`` is the (n_past, H, W) residual stack for ``residual`` setups (signed
+    residuals when ``setup.signed``, else absolute ones; an absolute value is taken here
+    if signed ones are given to an unsigned setup), or the past frames re-projected into
+    the current frame (newest first) for ``frames`` setups; a missing past input is all
+    zeros.
     """
     h, w = current.range.shape
     out = np.zeros((setup.channels, h, w), dtype=np.float32)
-    out[:5] = frame_channels(current, means, stds)
+    n_frame = len(setup.image_channels)
+    out[:n_frame] = frame_channels(current, means, stds, setup.channel_index)
     if setup.kind == "residual":
         res = np.asarray(extra, dtype=np.float32)
         if res.shape[1:] != (h, w) or len(res) > setup.n_past:
             raise ConfigError(f"residual stack of shape {res.shape} does not fit setup {setup} at {h} x {w}")
-        out[5 : 5 + len(res)] = res
+        if setup.signed:
+            out[n_frame : n_frame + len(res)] = res
+        else:
+            np.abs(res, out=out[n_frame : n_frame + len(res)])
     else:
         frames = list(extra)[: setup.n_past]
         for j, frame in enumerate(frames):

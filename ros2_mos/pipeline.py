@@ -97,7 +97,7 @@ class MosPipeline:
         self.means = np.asarray(meta.means, np.float32)
         self.stds = np.asarray(meta.stds, np.float32)
         self.odometry = KissIcpOdometry(config.odometry)
-        self.buffer = ScanBuffer(self.setup.n_past)
+        self.buffer = ScanBuffer(self.setup.history)
         # Past scans are re-projected in parallel (numpy releases the GIL in its ufuncs).
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mos-residuals") if self.n_past > 1 else None
         self._last_stamp: float | None = None
@@ -191,12 +191,13 @@ class MosPipeline:
         past = self.buffer.newest_first()
         if self.setup.kind == "residual" and self._torch is not None:
             residuals = self._torch.residuals(image.range, pose, [(s.points, s.pose) for s in past], self.n_past,
-                                              self.config.residuals)
+                                              self.config.residuals, self.setup.offsets, self.setup.signed)
             extra: np.ndarray | list[RangeImage] = residuals
         elif self.setup.kind == "residual":
             residuals = residual_images(
                 image.range, pose, [(s.points, s.pose) for s in past], self.n_past, self.sensor, self.config.residuals,
-                map_fn=self._pool.map if self._pool is not None else map,
+                map_fn=self._pool.map if self._pool is not None else map, offsets=self.setup.offsets,
+                signed=self.setup.signed,
             )
             extra = residuals
         else:
@@ -240,7 +241,7 @@ class MosPipeline:
             probability_image=prob_image,
             mask_image=mask_image,
             residuals=residuals,
-            n_past_available=min(len(past), self.n_past),
+            n_past_available=sum(o <= len(past) for o in self.setup.offsets),
             n_past_required=self.n_past,
             timings=watch.timings,
             warnings=warnings,

@@ -5,13 +5,16 @@ A past scan j is moved into the current frame with the relative pose
 
     d_j = |r_0 − r_j→0| / r_0      where both ranges lie in (min_range, max_range), else 0
 
+or, signed, ``(r_j→0 − r_0) / r_0``: positive where the past ray passed farther than the
+current point (that space was free: something moved in), negative where a past return
+came from closer (something moved away, or the current point was hidden behind it).
 The (2, 50) m window and the normalisation by the current range are those of the
 LiDAR-MOS reference code.
 """
 
 from __future__ import annotations
 
-from typing import Callable, Iterable, Iterator
+from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -47,13 +50,16 @@ def relative_pose(current_pose: np.ndarray, past_pose: np.ndarray) -> np.ndarray
     return np.linalg.inv(current_pose) @ past_pose
 
 
-def residual_image(current_range: np.ndarray, past_range: np.ndarray, config: ResidualConfig) -> np.ndarray:
-    """|r_0 − r_j| / r_0 on pixels where both ranges lie inside the window, 0 elsewhere."""
+def residual_image(
+    current_range: np.ndarray, past_range: np.ndarray, config: ResidualConfig, signed: bool = False
+) -> np.ndarray:
+    """|r_0 − r_j| / r_0 (or signed, (r_j − r_0) / r_0) where both ranges lie inside the window, 0 elsewhere."""
     lo, hi = config.min_range, config.max_range
     valid = (current_range > lo) & (current_range < hi) & (past_range > lo) & (past_range < hi)
     out = np.zeros_like(current_range, dtype=np.float32)
     r0 = current_range[valid]
-    out[valid] = np.abs(r0 - past_range[valid]) / r0
+    diff = (past_range[valid] - r0) / r0
+    out[valid] = diff if signed else np.abs(diff)
     return out
 
 
@@ -73,8 +79,13 @@ def residual_images(
     sensor: SensorConfig,
     config: ResidualConfig,
     map_fn: Callable[..., Iterable] = map,
+    offsets: Sequence[int] | None = None,
+    signed: bool = False,
 ) -> np.ndarray:
     """(n, H, W) residuals against the past scans, newest first; missing ones stay 0.
+
+    ``offsets`` (default 1..n) says how many scans back each residual's past scan is:
+    residual k compares with ``past_scans[offsets[k] - 1]``.
 
     ``map_fn`` may be a thread pool's ``map``: numpy releases the GIL in the heavy
     ufuncs, so the re-projections of several past scans overlap on several cores.
@@ -84,11 +95,15 @@ def residual_images(
     missing channels are zero, which is what the network saw in training for that case.
     """
     out = np.zeros((n, sensor.height, sensor.width), dtype=np.float32)
+    offsets = tuple(offsets) if offsets is not None else tuple(range(1, n + 1))
+    if len(offsets) != n:
+        raise ValueError(f"{len(offsets)} offsets for {n} residual images")
+    chosen = [past_scans[o - 1] for o in offsets if o <= len(past_scans)]
 
     def one(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        return residual_image(current_range, past_range_image(scan[0], scan[1], current_pose, sensor), config)
+        return residual_image(current_range, past_range_image(scan[0], scan[1], current_pose, sensor), config, signed)
 
-    results: Iterator[np.ndarray] = iter(map_fn(one, past_scans[:n]))
+    results: Iterator[np.ndarray] = iter(map_fn(one, chosen))
     for j, image in enumerate(results):
         out[j] = image
     return out

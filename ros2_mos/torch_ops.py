@@ -47,8 +47,8 @@ def range_image(points: torch.Tensor, sensor: SensorConfig) -> torch.Tensor:
 
 
 def residual_images(current_range: torch.Tensor, current_pose: np.ndarray, past: list[tuple[torch.Tensor, np.ndarray]],
-                    n: int, sensor: SensorConfig, config: ResidualConfig) -> torch.Tensor:
-    """(n, H, W) residuals against past scans (device tensors, own frame) and their world poses."""
+                    n: int, sensor: SensorConfig, config: ResidualConfig, signed: bool = False) -> torch.Tensor:
+    """(n, H, W) residuals against past scans (device tensors, own frame) and their world poses (signed or not)."""
     device = current_range.device
     out = torch.zeros((n, sensor.height, sensor.width), device=device, dtype=torch.float32)
     lo, hi = config.min_range, config.max_range
@@ -59,7 +59,9 @@ def residual_images(current_range: torch.Tensor, current_pose: np.ndarray, past:
         moved = points @ t[:3, :3].T + t[:3, 3]
         past_range = range_image(moved, sensor)
         valid = cur_ok & (past_range > lo) & (past_range < hi)
-        diff = torch.abs(current_range - past_range) / torch.where(valid, current_range, torch.ones_like(current_range))
+        diff = (past_range - current_range) / torch.where(valid, current_range, torch.ones_like(current_range))
+        if not signed:
+            diff = torch.abs(diff)
         out[j] = torch.where(valid, diff, torch.zeros_like(diff))
     return out
 
@@ -118,12 +120,16 @@ class TorchGeometry:
         return self._cache[key]
 
     def residuals(self, current_range: np.ndarray, pose: np.ndarray, past: list[tuple[np.ndarray, np.ndarray]],
-                  n: int, config: ResidualConfig) -> np.ndarray:
-        live = {id(p) for p, _ in past[:n]}
+                  n: int, config: ResidualConfig, offsets: tuple[int, ...] | None = None,
+                  signed: bool = False) -> np.ndarray:
+        """Like :func:`ros2_mos.residuals.residual_images`: residual k against ``past[offsets[k] - 1]``."""
+        offsets = tuple(offsets) if offsets is not None else tuple(range(1, n + 1))
+        chosen = [past[o - 1] for o in offsets if o <= len(past)]
+        live = {id(p) for p, _ in past}
         self._cache = {k: v for k, v in self._cache.items() if k in live}
         cur = torch.from_numpy(current_range).to(self.device)
-        on_device = [(self._on_device(p), q) for p, q in past[:n]]
-        return residual_images(cur, pose, on_device, n, self.sensor, config).cpu().numpy()
+        on_device = [(self._on_device(p), q) for p, q in chosen]
+        return residual_images(cur, pose, on_device, n, self.sensor, config, signed).cpu().numpy()
 
     def knn(self, prob_image: np.ndarray, range_img: np.ndarray, pixels: PixelIndex,
             config: PostprocessConfig) -> np.ndarray:

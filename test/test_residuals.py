@@ -65,6 +65,30 @@ def test_residual_uses_current_range_and_window():
     np.testing.assert_allclose(out, [[0.5, 0.0, 0.0, 0.0]])
 
 
+def test_signed_residual_says_which_way_the_range_changed():
+    current = np.array([[10.0, 10.0, 1.0, 10.0]], np.float32)
+    past = np.array([[15.0, 5.0, 1.5, 0.0]], np.float32)
+    # (15 − 10) / 10 = +0.5: the past ray went farther (free space now occupied); (5 − 10) / 10 = −0.5.
+    np.testing.assert_allclose(residual_image(current, past, WINDOW, signed=True), [[0.5, -0.5, 0.0, 0.0]])
+    np.testing.assert_allclose(residual_image(current, past, WINDOW), [[0.5, 0.5, 0.0, 0.0]])
+
+
+def test_offsets_pick_the_past_scans_and_leave_missing_ones_zero():
+    """Residual k compares with the scan offsets[k] back; scans not yet seen give zero channels."""
+    current = np.full((SENSOR.height, SENSOR.width), 10.0, np.float32)
+    walls = [(room(n=20000, seed=s) * f, np.eye(4)) for s, f in ((1, 0.5), (2, 0.6), (3, 0.7), (4, 0.8))]
+    expected = {o: residual_image(current, past_range_image(walls[o - 1][0], np.eye(4), np.eye(4), SENSOR), WINDOW,
+                                  signed=True) for o in (1, 2, 4)}
+    res = residual_images(current, np.eye(4), walls, 3, SENSOR, WINDOW, offsets=(1, 2, 4), signed=True)
+    for k, o in enumerate((1, 2, 4)):
+        np.testing.assert_array_equal(res[k], expected[o])
+    short = residual_images(current, np.eye(4), walls[:3], 3, SENSOR, WINDOW, offsets=(1, 2, 4), signed=True)
+    np.testing.assert_array_equal(short[:2], res[:2])
+    assert not short[2].any()  # 4 scans back does not exist yet
+    with pytest.raises(ValueError):
+        residual_images(current, np.eye(4), walls, 3, SENSOR, WINDOW, offsets=(1, 2))
+
+
 def test_missing_past_scans_give_zero_channels():
     current_range = np.full((SENSOR.height, SENSOR.width), 10.0, np.float32)
     res = residual_images(current_range, np.eye(4), [], 3, SENSOR, WINDOW)

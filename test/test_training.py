@@ -13,6 +13,7 @@ from conftest import TEST_SENSOR  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
 from ros2_mos.datasets.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times  # noqa: E402
+from ros2_mos.errors import ConfigError  # noqa: E402
 from ros2_mos.features import InputSetup  # noqa: E402
 from ros2_mos.labels import IGNORE  # noqa: E402
 from ros2_mos.projection import project  # noqa: E402
@@ -60,7 +61,9 @@ def test_cache_matches_the_core_pipeline(data_root, tmp_path):
     i = 3
     pts, rem, moving, pose = scans[i]
     image = project(pts, rem, TEST_SENSOR)
-    expected = residual_images(image.range, pose, [(scans[j][0], scans[j][3]) for j in (2, 1)], 2, TEST_SENSOR, spec.residual)
+    past = [(scans[j][0], scans[j][3]) for j in (2, 1)]
+    expected = residual_images(image.range, pose, past, 2, TEST_SENSOR, spec.residual, signed=True)
+    assert (expected < 0).any() and (expected > 0).any()  # the cache keeps the sign
     np.testing.assert_allclose(cache.residual[i].astype(np.float32), expected, rtol=2e-3, atol=2e-3)
     np.testing.assert_allclose(cache.frame[i, 0].astype(np.float32), image.range, rtol=1e-3)
     lab = cache.label[i]
@@ -118,7 +121,70 @@ def test_dataset_assembles_inputs_with_the_core(data_root, tmp_path):
     image = as_range_image(current)
     expected = (current - 1.0) / 2.0 * image.mask[None]
     np.testing.assert_allclose(x[:5].numpy(), expected, atol=1e-6)
-    np.testing.assert_allclose(x[5:].numpy(), extra)
+    np.testing.assert_allclose(x[5:].numpy(), np.abs(extra))  # an unsigned setup takes |signed residual|
+    signed = InputSetup("residual", 2, (1, 3), signed=True, image_channels=("range", "z"))
+    x, _ = MosDataset([cache], signed, [1.0] * 5, [2.0] * 5)[2]
+    np.testing.assert_allclose(x[0].numpy(), expected[0], atol=1e-6)
+    np.testing.assert_allclose(x[1].numpy(), expected[3], atol=1e-6)
+    np.testing.assert_allclose(x[2:].numpy(), np.asarray(cache.residual[2, [0, 2]], np.float32))
+
+
+def test_augmented_sample_is_flip_then_rotation_then_crop(data_root, tmp_path):
+    """The dataset's single column gather equals flip_y + rotate_columns + taking the first columns."""
+    spec = CacheSpec(sensor=TEST_SENSOR, n_residual=2, n_frames=1)
+    cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=1)
+    for setup in (InputSetup("residual", 2), InputSetup("frames", 1)):
+        ds = MosDataset([cache], setup, [0.0] * 5, [1.0] * 5, AugmentConfig(True, 1.0, 0.0, 100))
+        for seed in range(4):
+            current, extra, label = ds._augmented(3, np.random.default_rng(seed))
+            rng = np.random.default_rng(seed)
+            assert rng.random() < 1.0
+            k = int(rng.integers(TEST_SENSOR.width))
+            frames = setup.kind == "frames"
+            ref = flip_y(*ds.components(3), frames_kind=frames)
+            ref = rotate_columns(*ref, k, frames_kind=frames)
+            np.testing.assert_allclose(current, ref[0][..., :100], atol=1e-5)
+            np.testing.assert_allclose(extra, ref[1][..., :100], atol=1e-5)
+            np.testing.assert_array_equal(label, ref[2][..., :100])
+
+
+def test_pose_noise_perturbs_by_the_given_sigmas():
+    from ros2_mos.training.dataset import perturb_pose
+
+    t = np.eye(4)
+    t[:3, 3] = [1.0, 2.0, 3.0]
+    assert perturb_pose(t, 0.0, 0.0, np.random.default_rng(0)) is t
+    rng = np.random.default_rng(1)
+    moves, angles = [], []
+    for _ in range(400):
+        out = perturb_pose(t, 0.02, 0.05, rng)
+        np.testing.assert_allclose(out[:3, :3] @ out[:3, :3].T, np.eye(3), atol=1e-12)  # still a rotation
+        moves.append(out[:3, 3] - out[:3, :3] @ t[:3, 3])  # the noise's own translation
+        angles.append(np.degrees(np.arccos(np.clip((np.trace(out[:3, :3]) - 1) / 2, -1, 1))))
+    assert 0.015 < np.std(np.asarray(moves)) < 0.025
+    assert 0.02 < np.sqrt(np.mean(np.square(angles))) < 0.08
+    with pytest.raises(ConfigError):
+        CacheSpec(sensor=TEST_SENSOR, pose_noise=(float("nan"), 0.0))
+
+
+def test_cache_is_rebuilt_when_labels_change(data_root, tmp_path):
+    """Relabelling a sequence must not reuse the old labels (the key covers every input file)."""
+    import os
+    import shutil
+
+    seq = tmp_path / "seq"
+    shutil.copytree(data_root / "sequences" / "00", seq)
+    spec = CacheSpec(sensor=TEST_SENSOR, n_residual=1, n_frames=0)
+    first = SequenceCache.build(seq, tmp_path / "cache", spec, workers=1)
+    label_file = sorted((seq / "labels").glob("*.label"))[2]
+    labels = np.fromfile(label_file, np.uint32)
+    labels[:] = 251  # everything moving now
+    labels.tofile(label_file)
+    os.utime(label_file, ns=(1, 1))
+    second = SequenceCache.build(seq, tmp_path / "cache", spec, workers=1)
+    assert second.directory != first.directory
+    lab = np.asarray(second.label[2])
+    assert (lab[lab != IGNORE] == 1).all()
 
 
 def test_class_weights_inverse_frequency_with_ignore():

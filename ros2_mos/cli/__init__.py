@@ -14,3 +14,4 @@ from ros2_mos.cli import sim_commands  # noqa: F401
 from ros2_mos.cli import apps_commands  # noqa: F401
 from ros2_mos.cli import demo_command  # noqa: F401
 from ros2_mos.cli import bench_command  # noqa: F401
+from ros2_mos.cli import suite_command  # noqa: F401

@@ -25,12 +25,16 @@ def simulate(
     topic: str = typer.Option("/points", help="PointCloud2 topic in the bag"),
     frame_id: str = typer.Option("velodyne", help="frame_id of the clouds in the bag"),
     stats: bool = typer.Option(False, "--stats", help="Print statistics: points/scan, moving fraction, objects, speeds"),
+    randomize: bool = typer.Option(False, "--randomize/--no-randomize",
+                                   help="Draw each sequence's sensor noise, dropout, skew and mounting at random "
+                                        "(training data; seeded by --seed and the sequence name)"),
 ) -> None:
     """Simulate a rotating LiDAR driving through traffic; write SemanticKITTI sequences with MOS labels."""
     from tqdm import tqdm
 
     from ros2_mos.config import sensor_preset
     from ros2_mos.sim import format_stats, sequence_dir, sim_preset, simulate_sequence, with_effects, write_sequence_bag
+    from ros2_mos.sim.presets import randomized_for_sequence
 
     # `--sequences 00 01`: click takes one value per option, the rest arrive as extra arguments.
     extra = list(ctx.args)
@@ -52,8 +56,9 @@ def simulate(
     sensor_cfg = sensor_preset(sensor)
     results = []
     for name in names:
+        preset_used = randomized_for_sequence(sim, seed, name) if randomize else sim
         with tqdm(total=scans, desc=f"sequence {name}", unit="scan") as bar:
-            results.append(simulate_sequence(out_dir, name, scans, sim, seed, sensor_cfg, progress=bar.update))
+            results.append(simulate_sequence(out_dir, name, scans, preset_used, seed, sensor_cfg, progress=bar.update))
         if bag:
             bag_path = out_dir / "bags" / name
             bag_path.parent.mkdir(parents=True, exist_ok=True)

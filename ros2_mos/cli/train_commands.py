@@ -22,6 +22,8 @@ def train(
     max_minutes: Optional[float] = typer.Option(None, help="Override the config's wall-clock budget (minutes per run)"),
     export_to: Optional[Path] = typer.Option(None, "--export", help="Export best.pt to this ONNX file at the end"),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="tqdm progress bar"),
+    overrides: Optional[list[str]] = typer.Option(None, "--set", help="Override a config key: --set KEY=VALUE "
+                                                  "(VALUE in YAML, e.g. --set signed_residuals=false; repeatable)"),
 ) -> None:
     """Train a MOS network; resumes from OUT/last.pt.
 
@@ -32,6 +34,8 @@ def train(
     from ros2_mos.training.trainer import TrainConfig, Trainer, export_checkpoint
 
     cfg = TrainConfig.from_yaml(config)
+    if overrides:
+        cfg = TrainConfig.from_dict({**cfg.to_dict(), **parse_overrides(overrides)})
     if out is not None:
         cfg = dataclasses.replace(cfg, out_dir=str(out))
     if epochs is not None:
@@ -53,6 +57,22 @@ def train(
     if export_to is not None:
         report = export_checkpoint(Path(cfg.out_dir) / "best.pt", export_to)
         typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.2f} MB, max abs diff {report.max_abs_diff:.1e})")
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """``KEY=VALUE`` strings (VALUE parsed as YAML) as a dict; a malformed item is a one-line error."""
+    import yaml
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            fail(f"--set takes KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            fail(f"--set {key}: the value is not valid YAML ({exc.__class__.__name__})")
+    return out
 
 
 @app.command()

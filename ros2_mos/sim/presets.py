@@ -10,7 +10,10 @@ odometry, which is where masking moving points should pay off.
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from ros2_mos.errors import ConfigError
 
@@ -278,3 +281,31 @@ def sim_preset(name: str) -> SimPreset:
 def with_effects(preset: SimPreset, **changes: object) -> SimPreset:
     """A copy of ``preset`` with some sensor effects changed (e.g. ``intra_sweep_motion=True``)."""
     return replace(preset, effects=replace(preset.effects, **changes))
+
+
+def randomized_for_sequence(preset: SimPreset, seed: int, name: str) -> SimPreset:
+    """:func:`randomized` with the generator seeded by the simulation seed and the sequence name."""
+    return randomized(preset, np.random.default_rng([int(seed), zlib.crc32(name.encode()), 7]))
+
+
+def randomized(preset: SimPreset, rng: np.random.Generator) -> SimPreset:
+    """A copy of ``preset`` with the sensor's imperfections and the car's mounting drawn at random.
+
+    For training data (domain randomisation): real sensors differ in noise, dropout and
+    skew, so a network should not learn one simulated sensor's exact statistics.  The
+    ranges bracket the presets' own values; about half of the sequences are skewed
+    (each column cast from the pose at its firing time), as unprocessed driver output is.
+    """
+    u = rng.uniform
+    effects = replace(
+        preset.effects,
+        range_sigma=float(u(0.005, 0.04)),
+        dropout=float(u(0.0, 0.05)),
+        grazing_dropout=float(u(0.2, 0.8)),
+        far_dropout=float(u(0.05, 0.35)),
+        remission_sigma=float(u(0.01, 0.08)),
+        sensor_height=float(u(1.5, 2.1)),
+        intra_sweep_motion=bool(rng.random() < 0.5),
+    )
+    ego = replace(preset.ego, body_vibration_deg=float(u(0.02, 0.3)))
+    return replace(preset, effects=effects, ego=ego)

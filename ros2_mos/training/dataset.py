@@ -10,15 +10,26 @@ exactly the functions the node runs (:func:`~ros2_mos.projection.project`,
 ``.npy`` memory maps under ``<cache_root>/<sequence>-<key>/``:
 
 * ``frame.npy``     (S, 5, H, W) float16: raw r, x, y, z, e of the current scan (0 = empty)
-* ``residual.npy``  (S, N_max, H, W) float16: residuals against the last N_max scans
-* ``residual_sign.npy`` (S, 2, H, W) int8: sign of r_j - r_0 of the first two (for the baselines)
+* ``residual.npy``  (S, N_max, H, W) float16: *signed* residuals (r_j - r_0) / r_0 against
+  the last N_max scans (a setup without ``signed`` takes their absolute value)
 * ``past.npy``      (S, 5 * F_max, H, W) float16: the last F_max scans re-projected into this one
 * ``label.npy``     (S, H, W) int8: -1 ignore/empty, 0 static, 1 moving (label of the pixel's point)
 * ``points_*.npy``  per-point pixel, range and class, concatenated (only for evaluation sequences)
 
-A setup with n_past <= N_max takes the first n_past residual channels (newest first),
+A setup takes the residual channels of its ``offsets`` (the first n_past by default),
 so one cache serves the whole ablation.  The key hashes the sensor, the residual
-window, N_max, F_max, the pose source and the scan list, so a change rebuilds it.
+window, N_max, F_max, the pose source and pose noise, and every file the cache is
+computed from (names, sizes and modification times of the scans, labels and
+poses), so relabelling or new poses rebuild it.
+
+Pose noise
+----------
+The simulator's poses are exact; the node's come from KISS-ICP, whose scan-to-scan
+error is centimetres and hundredths of a degree.  With ``pose_noise`` = (σ_t in m,
+σ_r in degrees) each past scan is moved into the current frame with a relative pose
+perturbed by a random translation and rotation of those standard deviations (one
+draw per scan pair, seeded by the pair), so the network learns that small
+misregistration is not motion.
 The network input is then assembled at load time by the core's
 :func:`~ros2_mos.features.assemble_input` (normalisation with the model's means/stds).
 
@@ -47,6 +58,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -62,14 +74,10 @@ from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
 from ros2_mos.errors import ConfigError, DatasetError
 from ros2_mos.features import InputSetup, assemble_input
 from ros2_mos.labels import IGNORE, to_moving_classes
-from ros2_mos.projection import PixelIndex, RangeImage, finite_mask, project
-from ros2_mos.residuals import past_range_image, relative_pose, residual_image, transform_points
+from ros2_mos.projection import PixelIndex, RangeImage, finite_mask, project, project_range_columns
+from ros2_mos.residuals import relative_pose, residual_image, transform_columns, transform_points
 
-CACHE_VERSION = 2
-# Signs of r_j - r_0 kept for the first residuals: +1 where the past ray went farther
-# (the space of the current point was free before: it moved in), -1 where a past
-# object stood closer (it moved away).  Only the heuristic baselines use them.
-N_SIGNED = 2
+CACHE_VERSION = 3
 _EMPTY_PIXELS = PixelIndex(
     u=np.empty(0, np.int32), v=np.empty(0, np.int32), range=np.empty(0, np.float32), in_image=np.empty(0, bool)
 )
@@ -85,22 +93,54 @@ class CacheSpec:
     n_frames: int = 1
     poses: str = "dataset"  # 'dataset' (poses.txt) or 'kiss_icp'
     with_points: bool = False
+    pose_noise: tuple[float, float] = (0.0, 0.0)  # σ of the relative pose: translation (m), rotation (deg)
 
     def __post_init__(self) -> None:
         if self.poses not in ("dataset", "kiss_icp"):
             raise ConfigError(f"poses must be 'dataset' or 'kiss_icp', got {self.poses!r}")
         if self.n_residual < 0 or self.n_frames < 0:
             raise ConfigError("n_residual and n_frames must be >= 0")
+        noise = tuple(float(v) for v in self.pose_noise)
+        if len(noise) != 2 or not all(math.isfinite(v) and 0.0 <= v <= 10.0 for v in noise):
+            raise ConfigError(f"pose_noise must be two finite values in [0, 10] (m, deg), got {self.pose_noise}")
+        object.__setattr__(self, "pose_noise", noise)
 
     def serves(self, setup: InputSetup) -> bool:
-        return setup.n_past <= (self.n_residual if setup.kind == "residual" else self.n_frames)
+        return setup.history <= (self.n_residual if setup.kind == "residual" else self.n_frames)
+
+
+def _file_stamps(paths: Iterable[Path]) -> list[tuple[str, int, int]]:
+    out = []
+    for p in paths:
+        st = p.stat()
+        out.append((p.name, st.st_size, st.st_mtime_ns))
+    return out
 
 
 def _cache_key(spec: CacheSpec, sequence: SemanticKittiSequence) -> str:
-    listing = [p.name for p in sequence.scan_files]
-    stamp = [sequence.scan_files[0].stat().st_size, sequence.scan_files[-1].stat().st_mtime_ns]
-    blob = json.dumps([CACHE_VERSION, asdict(spec), len(listing), listing[0], listing[-1], stamp], sort_keys=True)
+    """A hash of what the cache is computed from: spec, path, and every input file's name, size and mtime."""
+    root = Path(sequence.root).resolve()
+    inputs = list(sequence.scan_files)
+    for sub in ("labels",):
+        if (root / sub).is_dir():
+            inputs += sorted((root / sub).glob("*.label"))
+    inputs += [root / name for name in ("poses.txt", "calib.txt", "times.txt") if (root / name).is_file()]
+    blob = json.dumps([CACHE_VERSION, asdict(spec), str(root), _file_stamps(inputs)], sort_keys=True)
     return hashlib.sha1(blob.encode()).hexdigest()[:12]
+
+
+def perturb_pose(transform: np.ndarray, sigma_t: float, sigma_deg: float, rng: np.random.Generator) -> np.ndarray:
+    """``transform`` composed with a random rigid motion (translation σ_t m per axis, rotation σ_deg about a random axis)."""
+    if sigma_t == 0.0 and sigma_deg == 0.0:
+        return transform
+    axis = rng.normal(size=3)
+    axis /= max(float(np.linalg.norm(axis)), 1e-12)
+    angle = np.radians(rng.normal(0.0, sigma_deg))
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    noise = np.eye(4)
+    noise[:3, :3] = np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)  # Rodrigues
+    noise[:3, 3] = rng.normal(0.0, sigma_t, 3)
+    return noise @ transform
 
 
 @dataclass
@@ -137,7 +177,6 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
     frame_mm = np.load(out / "frame.npy", mmap_mode="r+")
     label_mm = np.load(out / "label.npy", mmap_mode="r+")
     res_mm = np.load(out / "residual.npy", mmap_mode="r+") if spec.n_residual else None
-    sign_mm = np.load(out / "residual_sign.npy", mmap_mode="r+") if spec.n_residual else None
     past_mm = np.load(out / "past.npy", mmap_mode="r+") if spec.n_frames else None
     sensor = spec.sensor
     history = max(spec.n_residual, spec.n_frames)
@@ -154,16 +193,15 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
             lab = np.full(image.point_index.shape, IGNORE, np.int8)
         label_mm[i] = lab
         if res_mm is not None:
-            # residual_images() of the core, unrolled to also keep the sign of r_j - r_0 for the baselines.
+            # residual_images() of the core, unrolled for the per-pair pose noise.
             res = np.zeros((spec.n_residual, sensor.height, sensor.width), np.float32)
-            sign = np.zeros((N_SIGNED, sensor.height, sensor.width), np.int8)
             for j, s in enumerate(buffer[: spec.n_residual]):
-                past_range = past_range_image(s.points, s.pose, scan.pose, sensor)
-                res[j] = residual_image(image.range, past_range, spec.residual)
-                if j < N_SIGNED:
-                    sign[j] = np.sign(past_range - image.range) * (res[j] > 0)
+                rng = np.random.default_rng((i, j + 1, spec.n_residual))
+                moved = perturb_pose(relative_pose(scan.pose, s.pose), *spec.pose_noise, rng)
+                x, y, z = transform_columns(s.points, moved)
+                past_range = project_range_columns(x, y, z, sensor)
+                res[j] = residual_image(image.range, past_range, spec.residual, signed=True)
             res_mm[i] = res.astype(np.float16)
-            sign_mm[i] = sign
         if past_mm is not None:
             stack = np.zeros((5 * spec.n_frames, sensor.height, sensor.width), np.float32)
             for j, s in enumerate(buffer[: spec.n_frames]):
@@ -182,7 +220,7 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
             )
         buffer.insert(0, scan)
         del buffer[history:]
-    for mm in (frame_mm, label_mm, res_mm, sign_mm, past_mm):
+    for mm in (frame_mm, label_mm, res_mm, past_mm):
         if mm is not None:
             mm.flush()
     return stop - start
@@ -215,7 +253,6 @@ class SequenceCache:
         self.frame = np.load(directory / "frame.npy", mmap_mode="r")
         self.label = np.load(directory / "label.npy", mmap_mode="r")
         self.residual = np.load(directory / "residual.npy", mmap_mode="r") if spec.n_residual else None
-        self.residual_sign = np.load(directory / "residual_sign.npy", mmap_mode="r") if spec.n_residual else None
         self.past = np.load(directory / "past.npy", mmap_mode="r") if spec.n_frames else None
         self.name = json.loads((directory / "info.json").read_text())["sequence"]
 
@@ -256,7 +293,6 @@ class SequenceCache:
         np.lib.format.open_memmap(directory / "label.npy", "w+", np.int8, (s, h, w)).flush()
         if spec.n_residual:
             np.lib.format.open_memmap(directory / "residual.npy", "w+", np.float16, (s, spec.n_residual, h, w)).flush()
-            np.lib.format.open_memmap(directory / "residual_sign.npy", "w+", np.int8, (s, N_SIGNED, h, w)).flush()
         if spec.n_frames:
             np.lib.format.open_memmap(directory / "past.npy", "w+", np.float16, (s, 5 * spec.n_frames, h, w)).flush()
         if progress:
@@ -342,23 +378,32 @@ class MosDataset(Dataset):
         """Different augmentations each epoch, yet reproducible for a seed."""
         self.epoch = epoch
 
-    def components(self, item: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Raw (current 5xHxW, extra (n, H, W) residuals or (5n, H, W) frames, label) of a sample."""
+    def components(self, item: int, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Raw (current 5xHxW, extra (n, H, W) residuals or (5n, H, W) frames, label) of a sample.
+
+        ``columns`` gathers only those image columns (in that order), as a crop would.
+        """
         c, i = self.index[item]
         cache = self.caches[c]
-        current = np.asarray(cache.frame[i], np.float32)
+
+        def read(array: np.ndarray, dtype: type) -> np.ndarray:
+            return np.asarray(array if columns is None else np.take(array, columns, axis=-1), dtype)
+
+        current = read(cache.frame[i], np.float32)
         n = self.setup.n_past
         if self.setup.kind == "residual":
-            extra = np.asarray(cache.residual[i, :n], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
+            channels = [o - 1 for o in self.setup.offsets]
+            extra = read(cache.residual[i, channels], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
         else:
-            extra = np.asarray(cache.past[i, : 5 * n], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
-        return current, extra, np.asarray(cache.label[i], np.int64)
+            extra = read(cache.past[i, : 5 * n], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
+        return current, extra, read(cache.label[i], np.int64)
 
     def __getitem__(self, item: int) -> tuple[torch.Tensor, torch.Tensor]:
-        current, extra, label = self.components(item)
         if self.augment is not None:
             rng = np.random.default_rng((self.seed, self.epoch, item))
-            current, extra, label = self._augment(rng, current, extra, label)
+            current, extra, label = self._augmented(item, rng)
+        else:
+            current, extra, label = self.components(item)
         if self.setup.kind == "residual":
             x = assemble_input(as_range_image(current), extra, self.setup, self.means, self.stds)
         else:
@@ -366,17 +411,35 @@ class MosDataset(Dataset):
             x = assemble_input(as_range_image(current), frames, self.setup, self.means, self.stds)
         return torch.from_numpy(x), torch.from_numpy(label)
 
-    def _augment(
-        self, rng: np.random.Generator, current: np.ndarray, extra: np.ndarray, label: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _augmented(self, item: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Flip, rotate, crop as one column gather, then drop points.
+
+        Equal to :func:`flip_y` followed by :func:`rotate_columns` by k and taking the first
+        ``crop_width`` columns (the column of crop position c is ``(c + k) mod W``, mirrored
+        to ``W - 1 - that`` when flipped), but only the cropped columns are read and converted.
+        """
         aug = self.augment
         assert aug is not None
         frames_kind = self.setup.kind == "frames"
-        w = current.shape[-1]
-        if aug.flip_y and rng.random() < aug.flip_y:
-            current, extra, label = flip_y(current, extra, label, frames_kind)
-        if aug.rotate:
-            current, extra, label = rotate_columns(current, extra, label, int(rng.integers(w)), frames_kind)
+        c, _ = self.index[item]
+        w = self.caches[c].frame.shape[-1]
+        flip = bool(aug.flip_y) and rng.random() < aug.flip_y
+        k = int(rng.integers(w)) if aug.rotate else 0
+        width = aug.crop_width if aug.crop_width is not None else w
+        columns = (k + np.arange(width)) % w
+        if flip:
+            columns = w - 1 - columns
+        current, extra, label = self.components(item, columns)
+        if flip:
+            current[2] *= -1.0
+            if frames_kind:
+                extra[2::5] *= -1.0
+        if k:
+            theta = 2.0 * np.pi * k / w
+            cos, sin = float(np.cos(theta)), float(np.sin(theta))
+            _rotate_xy(current, cos, sin)
+            if frames_kind:
+                _rotate_xy(extra, cos, sin)
         if aug.drop_max > 0:
             fraction = rng.random() * aug.drop_max
             drop = rng.random(label.shape) < fraction
@@ -384,10 +447,7 @@ class MosDataset(Dataset):
             if not frames_kind:
                 extra[:, drop] = 0.0
             label[drop] = IGNORE
-        if aug.crop_width is not None and aug.crop_width < w:
-            cw = aug.crop_width
-            current, extra, label = current[..., :cw], extra[..., :cw], label[..., :cw]
-        return np.ascontiguousarray(current), np.ascontiguousarray(extra), np.ascontiguousarray(label)
+        return current, extra, label
 
 
 def flip_y(

@@ -60,6 +60,10 @@ class TrainConfig:
     network_kwargs: dict[str, Any] = field(default_factory=dict)
     input_kind: str = "residual"
     n_past: int = 3
+    past_offsets: list[int] = field(default_factory=list)  # empty: 1..n_past
+    signed_residuals: bool = False
+    image_channels: list[str] = field(default_factory=lambda: ["range", "x", "y", "z", "remission"])
+    pose_noise: list[float] = field(default_factory=lambda: [0.0, 0.0])  # training inputs: σ_t (m), σ_r (deg)
     sensor: str | dict[str, Any] = "hdl64"
     residual_min_range: float = 2.0
     residual_max_range: float = 50.0
@@ -99,14 +103,34 @@ class TrainConfig:
             raise ConfigError(f"optimizer must be 'sgd' or 'adamw', got {self.optimizer!r}")
         if self.epochs < 1 or self.batch_size < 1:
             raise ConfigError("epochs and batch_size must be >= 1")
+        for name in ("lr", "lr_decay", "momentum", "weight_decay", "warmup_epochs", "lovasz_weight", "weight_eps",
+                     "flip_y", "drop_max", "max_class_weight", "max_minutes", "residual_min_range", "residual_max_range"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                      or not math.isfinite(value)):
+                raise ConfigError(f"training config: {name} must be a finite number, got {value!r}")
         if self.lr <= 0 or not 0 < self.lr_decay <= 1:
             raise ConfigError("need lr > 0 and 0 < lr_decay <= 1")
-        self.setup  # validates kind / n_past
+        if self.lovasz_weight < 0 or self.weight_decay < 0 or self.warmup_epochs < 0 or self.weight_eps <= 0:
+            raise ConfigError("lovasz_weight, weight_decay and warmup_epochs must be >= 0, weight_eps > 0")
+        if not 0 <= self.momentum < 1 or not 0 <= self.flip_y <= 1 or not 0 <= self.drop_max < 1:
+            raise ConfigError("momentum and drop_max must be in [0, 1), flip_y in [0, 1]")
+        if self.max_minutes is not None and self.max_minutes <= 0:
+            raise ConfigError(f"max_minutes must be > 0, got {self.max_minutes}")
+        if self.max_class_weight is not None and self.max_class_weight <= 0:
+            raise ConfigError(f"max_class_weight must be > 0, got {self.max_class_weight}")
+        if self.crop_width is not None and self.crop_width < 16:
+            raise ConfigError(f"crop_width must be >= 16, got {self.crop_width}")
+        if not 0 <= self.residual_min_range < self.residual_max_range:
+            raise ConfigError("need 0 <= residual_min_range < residual_max_range")
+        self.setup  # validates kind / n_past / offsets / channels
         self.sensor_config  # validates the sensor
+        self.cache_spec  # validates pose_noise
 
     @property
     def setup(self) -> InputSetup:
-        return InputSetup(self.input_kind, self.n_past)
+        return InputSetup(self.input_kind, self.n_past, tuple(self.past_offsets), self.signed_residuals,
+                          tuple(self.image_channels))
 
     @property
     def sensor_config(self) -> SensorConfig:
@@ -119,9 +143,10 @@ class TrainConfig:
         return CacheSpec(
             sensor=self.sensor_config,
             residual=ResidualConfig(self.residual_min_range, self.residual_max_range),
-            n_residual=max(self.cache_n_residual, self.n_past if self.input_kind == "residual" else 0),
+            n_residual=max(self.cache_n_residual, self.setup.history if self.input_kind == "residual" else 0),
             n_frames=max(self.cache_n_frames, self.n_past if self.input_kind == "frames" else 0),
             poses=self.poses,
+            pose_noise=(float(self.pose_noise[0]), float(self.pose_noise[1])) if len(self.pose_noise) == 2 else (-1.0, -1.0),
         )
 
     @classmethod
@@ -215,12 +240,12 @@ def lr_at(config: TrainConfig, epoch_float: float) -> float:
 
 @torch.no_grad()
 def evaluate_pixels(model: nn.Module, dataset: MosDataset, loss_fn: MosLoss | None, device: torch.device,
-                    batch_size: int = 1, progress: Callable | None = None) -> tuple[float, float]:
+                    batch_size: int = 1, progress: Callable | None = None, workers: int = 0) -> tuple[float, float]:
     """Pixel-level moving IoU (and mean loss) of ``model`` on a dataset, full images, no augmentation."""
     model.eval()
     tp = fp = fn = 0
     losses: list[float] = []
-    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False)
+    loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=workers)
     iterator = progress(loader) if progress else loader
     for x, y in iterator:
         x, y = x.to(device), y.to(device)
@@ -386,7 +411,8 @@ class Trainer:
             if self.dist.main:
                 valid_iou, valid_loss = (float("nan"), float("nan"))
                 if len(self.valid_set):
-                    valid_iou, valid_loss = evaluate_pixels(self._raw_model(), self.valid_set, self.loss_fn, self.dist.device)
+                    valid_iou, valid_loss = evaluate_pixels(self._raw_model(), self.valid_set, self.loss_fn,
+                                                            self.dist.device, workers=config.workers)
                 result = dataclasses.replace(result, valid_iou=valid_iou, valid_loss=valid_loss,
                                              seconds=time.monotonic() - t0)
                 self.history.append(result)

@@ -1,0 +1,1 @@
+"""Scoring: the fixed evaluation suite and the heuristic baselines it compares with."""

@@ -1,0 +1,110 @@
+"""The paper's heuristic baselines (Table II) as pure functions of images: ``Residual`` and ``Residual + RG``.
+
+* **Residual**: a pixel is moving when its newest residual |d_1| exceeds τ.  The
+  paper reports how poorly this does (1.9 IoU on SemanticKITTI): residuals light up
+  twice for every moving object (where it is and where it was) and on every
+  occlusion edge.
+* **Residual + RG** (after Yoon et al. 2019): *free-space check* + *region growing*.
+  Seeds are pixels whose current point lies where both past scans saw free space
+  (signed residuals (r_j − r_0) / r_0 above τ_seed for j = 1, 2: the rays passed
+  farther, so something moved *in*); the "where it was" ghost fails that sign test.
+  Seeds are then grown over connected non-ground regions of the range image
+  (4-neighbours, range jumps below ``max(0.3 m, δ·r)``), and a region is moving when
+  at least a fraction ρ of it is seeds.  Ground is removed by height (z below the
+  scan's ground level + 0.3 m), as geometric pipelines do.
+
+The training code tunes their parameters on validation caches
+(:mod:`ros2_mos.training.baselines`); the evaluation suite runs them online beside a
+model (:mod:`ros2_mos.scoring.suite`).  numpy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def ground_mask(raw: np.ndarray, margin: float = 0.3) -> np.ndarray:
+    """Pixels on the ground: z below the 10th percentile of near points' z, plus a margin."""
+    r, z = raw[0], raw[3]
+    near = (r > 0) & (r < 20.0)
+    if not near.any():
+        return np.zeros_like(r, bool)
+    ground_z = float(np.percentile(z[near], 10))
+    return (r > 0) & (z < ground_z + margin)
+
+
+def connected_regions(valid: np.ndarray, rng: np.ndarray, rel: float, min_jump: float = 0.3) -> np.ndarray:
+    """Connected components of ``valid`` pixels linked where neighbouring ranges are close.
+
+    Union-find in numpy (no scipy): hook every edge's larger root onto its smaller
+    one, compress paths by pointer jumping, repeat until no edge joins two roots
+    (a few rounds).  The image wraps around in azimuth.  Returns an (H, W) int64
+    label (-1 where not valid); pixels of one region share the smallest pixel id.
+    """
+    h, w = valid.shape
+    ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
+    right_r = np.roll(rng, -1, axis=1)
+    link_right = valid & np.roll(valid, -1, axis=1)
+    link_right &= np.abs(rng - right_r) < np.maximum(min_jump, rel * np.minimum(rng, right_r))
+    link_down = valid[:-1] & valid[1:]
+    link_down &= np.abs(rng[:-1] - rng[1:]) < np.maximum(min_jump, rel * np.minimum(rng[:-1], rng[1:]))
+    a = np.concatenate([ids[link_right], ids[:-1][link_down]])
+    b = np.concatenate([np.roll(ids, -1, axis=1)[link_right], ids[1:][link_down]])
+    parent = ids.reshape(-1).copy()
+    while len(a):
+        pa, pb = parent[a], parent[b]
+        differ = pa != pb
+        if not differ.any():
+            break
+        a, b, pa, pb = a[differ], b[differ], pa[differ], pb[differ]
+        np.minimum.at(parent, np.maximum(pa, pb), np.minimum(pa, pb))
+        while True:
+            jumped = parent[parent]
+            if np.array_equal(jumped, parent):
+                break
+            parent = jumped
+    return np.where(valid, parent.reshape(h, w), -1)
+
+
+def residual_threshold(newest_residual: np.ndarray, tau: float) -> np.ndarray:
+    """Residual baseline: |d_1| > τ per pixel."""
+    return np.abs(newest_residual) > tau
+
+
+def free_space_seeds(signed_residuals: np.ndarray, tau_seed: float) -> np.ndarray:
+    """Pixels where the two newest signed residuals both exceed τ_seed (the space was free twice)."""
+    return (signed_residuals[0] > tau_seed) & (signed_residuals[1] > tau_seed)
+
+
+def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:
+    """Pixels of every region (label >= 0) of which at least ``seed_fraction`` (and > 0 pixels) are seeds."""
+    seeds = seeds & (regions >= 0)
+    if not seeds.any():
+        return np.zeros(seeds.shape, bool)
+    lab = regions[regions >= 0]
+    size = np.bincount(lab, minlength=regions.size)
+    hits = np.bincount(regions[seeds], minlength=regions.size)
+    moving_region = (hits >= seed_fraction * np.maximum(size, 1)) & (hits > 0)
+    out = np.zeros(seeds.shape, bool)
+    out[regions >= 0] = moving_region[lab]
+    return out
+
+
+@dataclass(frozen=True)
+class RegionGrowingParams:
+    """Residual + RG parameters; the defaults are those tuned on the simulator's validation sequence."""
+
+    tau_seed: float = 0.1
+    rel_jump: float = 0.06
+    seed_fraction: float = 0.1
+
+
+def region_growing(range_image: np.ndarray, z_image: np.ndarray, signed_residuals: np.ndarray,
+                   params: RegionGrowingParams = RegionGrowingParams()) -> np.ndarray:
+    """Residual + RG baseline on one scan: range and z images (0 = empty) and the two newest signed residuals."""
+    raw = np.stack([range_image, np.zeros_like(range_image), np.zeros_like(range_image), z_image])
+    valid = (range_image > 0) & ~ground_mask(raw)
+    regions = connected_regions(valid, range_image, params.rel_jump)
+    return grow_regions(free_space_seeds(signed_residuals, params.tau_seed), regions, params.seed_fraction)

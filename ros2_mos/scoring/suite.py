@@ -1,0 +1,197 @@
+"""The fixed evaluation suite: one table that says how good a model is, beside the heuristics.
+
+Rows
+----
+* **Simulated, held out**: every preset (easy, benchmark, traffic_jam), each with the
+  seeds in :data:`SIM_SEEDS`; no training recipe of this project uses them (training
+  data is simulated with seed 100, the demo with its own).  The sequences are
+  simulated on first use into the suite's data folder and reused afterwards.  Every
+  scan is scored, with KISS-ICP poses (the node's odometry), as the node would label
+  them.
+* **Real**: the KITTI seq-08 development scans of ``../shared/real`` (unpacked with its
+  ``unpack.sh``), scored as *agreement* IoU with another model's predictions after
+  :data:`REAL_WARMUP` warm-up scans (no history before them).  Skipped, with a line
+  saying so, where they are absent.
+
+Columns: moving IoU, precision, recall, false-positive points per scan, the largest
+share of a scan's points labelled moving, and the **Residual** and **Residual + RG**
+baselines (:mod:`ros2_mos.scoring.baselines`) run on the very same scans with the same
+poses and the same kNN back-projection.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
+from ros2_mos.errors import DatasetError
+from ros2_mos.labels import to_moving_classes
+from ros2_mos.metrics import MovingIoU
+from ros2_mos.pipeline import MosPipeline
+from ros2_mos.postprocess import backproject
+from ros2_mos.projection import finite_mask, project
+from ros2_mos.residuals import residual_images
+from ros2_mos.scoring.baselines import RegionGrowingParams, region_growing, residual_threshold
+
+#: Held-out simulation seeds per preset (never used for training data).
+SIM_SEEDS: dict[str, tuple[int, ...]] = {
+    "easy": (9301, 9302),
+    "benchmark": (9101, 9102),
+    "traffic_jam": (9201, 9202),
+}
+#: Residual baseline threshold, tuned on the simulator's validation sequence (benchmarks/ablation.md).
+RESIDUAL_TAU = 0.05
+#: Real scans scored after this many scans of history.
+REAL_WARMUP = 8
+
+
+@dataclass
+class RowScore:
+    """One row of the suite: the model's counts and the baselines' on the same scans."""
+
+    name: str
+    scans: int = 0
+    model: MovingIoU = field(default_factory=MovingIoU)
+    residual: MovingIoU = field(default_factory=MovingIoU)
+    region_growing: MovingIoU = field(default_factory=MovingIoU)
+    max_moving_fraction: float = 0.0
+    seconds: float = 0.0
+
+    def add(self, other: "RowScore") -> None:
+        self.scans += other.scans
+        self.model = self.model + other.model
+        self.residual = self.residual + other.residual
+        self.region_growing = self.region_growing + other.region_growing
+        self.max_moving_fraction = max(self.max_moving_fraction, other.max_moving_fraction)
+        self.seconds += other.seconds
+
+
+def _precision(s: MovingIoU) -> float:
+    return s.tp / (s.tp + s.fp) if s.tp + s.fp else float("nan")
+
+
+def _recall(s: MovingIoU) -> float:
+    return s.tp / (s.tp + s.fn) if s.tp + s.fn else float("nan")
+
+
+def score_sequence(pipeline: MosPipeline, sequence: SemanticKittiSequence, name: str, warmup: int = 0,
+                   rg_params: RegionGrowingParams = RegionGrowingParams(),
+                   progress: Callable[[], None] | None = None) -> RowScore:
+    """Run the pipeline (KISS-ICP poses) over a labelled sequence; score scans from ``warmup`` on."""
+    if not sequence.has_labels:
+        raise DatasetError(f"{sequence.root}: no labels/ to score against")
+    row = RowScore(name)
+    sensor, post = pipeline.sensor, pipeline.config.postprocess
+    pipeline.reset()
+    start = time.perf_counter()
+    for frame in sequence:
+        past = [(s.points, s.pose) for s in pipeline.buffer.newest_first()]
+        result = pipeline.process(frame.points, frame.remission, frame.timestamp)
+        if progress is not None:
+            progress()
+        if frame.index < warmup:
+            continue
+        gt = to_moving_classes(frame.labels)
+        row.scans += 1
+        row.model.update(result.labels, gt)
+        row.max_moving_fraction = max(row.max_moving_fraction, float(result.labels[result.valid].mean()))
+        # The baselines on the same scan, poses and back-projection.
+        valid = finite_mask(frame.points)
+        xyz = np.ascontiguousarray(frame.points[valid], np.float32)
+        image = project(xyz, np.zeros(len(xyz), np.float32), sensor)
+        signed = residual_images(image.range, result.pose, past, 2, sensor, pipeline.config.residuals, signed=True)
+        z_image = np.where(image.mask, image.xyz[..., 2], 0.0)
+        for score, mask in ((row.residual, residual_threshold(signed[0], RESIDUAL_TAU)),
+                            (row.region_growing, region_growing(image.range, z_image, signed, rg_params))):
+            moving = np.zeros(len(frame.points), bool)
+            moving[valid] = backproject(mask.astype(np.float32), image.range, image.pixels, post, 0.5) >= 0.5
+            score.update(moving, gt)
+    row.seconds = time.perf_counter() - start
+    return row
+
+
+def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...]] = SIM_SEEDS,
+                         log: Callable[[str], None] = lambda s: None) -> list[tuple[str, str, Path]]:
+    """(preset, row name, sequence folder) of the suite's simulated sequences, simulating missing ones."""
+    from ros2_mos.sim import sim_preset, simulate_sequence
+
+    out = []
+    for preset, preset_seeds in seeds.items():
+        for seed in preset_seeds:
+            name = f"{preset}-{seed}-{scans}"
+            folder = root / "sequences" / name
+            if not (folder / "poses.txt").is_file():
+                log(f"simulating {name} ({scans} scans) into {folder}")
+                simulate_sequence(root, name, scans, sim_preset(preset), seed)
+            out.append((preset, name, folder))
+    return out
+
+
+def real_sequences(real_root: Path | None) -> list[Path]:
+    """The real development sequences under ``real_root`` (``sequences/08a``, ``08b``), or none."""
+    if real_root is None or not (real_root / "sequences").is_dir():
+        return []
+    return sorted(p for p in (real_root / "sequences").iterdir() if (p / "velodyne").is_dir() and (p / "labels").is_dir())
+
+
+def run_suite(pipeline: MosPipeline, sim_root: Path, real_root: Path | None, scans: int = 100,
+              seeds: dict[str, tuple[int, ...]] = SIM_SEEDS, log: Callable[[str], None] = lambda s: None,
+              progress: Callable[[], None] | None = None) -> list[RowScore]:
+    """Every row of the suite: per sequence, per preset, the real scans; absent real scans are skipped."""
+    rows: list[RowScore] = []
+    for preset, group in _grouped(ensure_sim_sequences(sim_root, scans, seeds, log)):
+        total = RowScore(f"sim {preset}")
+        for name, folder in group:
+            row = score_sequence(pipeline, SemanticKittiSequence(folder), f"  {name}", progress=progress)
+            rows.append(row)
+            total.add(row)
+        rows.append(total)
+    real = real_sequences(real_root)
+    if real:
+        total = RowScore("real KITTI 08 (agreement)")
+        for folder in real:
+            row = score_sequence(pipeline, SemanticKittiSequence(folder), f"  real {folder.name}", REAL_WARMUP,
+                                 progress=progress)
+            rows.append(row)
+            total.add(row)
+        rows.append(total)
+    else:
+        log(f"real scans skipped: no {real_root}/sequences/*/{{velodyne,labels}} "
+            "(unpack them with ../shared/real/unpack.sh data/real-kitti08-dev)")
+    return rows
+
+
+def _grouped(items: Iterable[tuple[str, str, Path]]) -> list[tuple[str, list[tuple[str, Path]]]]:
+    groups: dict[str, list[tuple[str, Path]]] = {}
+    for preset, name, folder in items:
+        groups.setdefault(preset, []).append((name, folder))
+    return list(groups.items())
+
+
+def format_table(rows: list[RowScore], title: str = "") -> str:
+    """A Markdown table: IoU, precision, recall, FP per scan, max moving share, and the baselines' IoU."""
+
+    def pct(v: float) -> str:
+        return "–" if v != v else f"{100 * v:.1f}"
+
+    lines = [title] if title else []
+    lines += [
+        "| data | scans | moving IoU | precision | recall | FP points / scan | max % of a scan moving | "
+        "Residual IoU | Residual + RG IoU | model − RG |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        bold = not r.name.startswith(" ")
+        iou = pct(r.model.iou)
+        margin = 100 * (r.model.iou - r.region_growing.iou)
+        lines.append(
+            f"| {r.name.strip()} | {r.scans} | {f'**{iou}**' if bold else iou} | {pct(_precision(r.model))} | "
+            f"{pct(_recall(r.model))} | {r.model.fp / max(r.scans, 1):.0f} | {100 * r.max_moving_fraction:.1f} | "
+            f"{pct(r.residual.iou)} | {pct(r.region_growing.iou)} | {'–' if margin != margin else f'{margin:+.1f}'} |"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,118 @@
+"""Simulate the training data, then train one or more variants of a recipe side by side.
+
+    python tools/train_models.py --config configs/fastmos_signed.yaml --data data/train \\
+        [--variant "NAME KEY=VALUE ..."]... [--runs runs] [--scans 120] [--jobs N] [--pack runs.tar]
+
+Sequence names in the config say which preset each is simulated with (b* benchmark,
+t* traffic_jam, e* easy); every sequence gets its own randomised sensor effects
+(:func:`ros2_mos.sim.presets.randomized_for_sequence`) from ``--seed`` (100 by default;
+the evaluation suite's seeds are different, see :mod:`ros2_mos.scoring.suite`).
+Sequences already on disk are kept.  The first variant builds the shared input
+cache; the others start once it trains.  Without ``--variant`` the config is
+trained as it is.  A run resumes from its ``last.pt``.
+
+Library calls only (no CLI, no ROS, no ONNX Runtime): it runs where only numpy,
+torch, PyYAML and embreex are installed, e.g. a bare GPU machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import sys
+import tarfile
+import time
+from pathlib import Path
+
+import yaml
+
+PRESET_OF_PREFIX = {"b": "benchmark", "t": "traffic_jam", "e": "easy"}
+
+
+def _simulate(job: tuple[str, str, int, int]) -> str:
+    from ros2_mos.sim import sim_preset, simulate_sequence
+    from ros2_mos.sim.presets import randomized_for_sequence
+
+    root, name, scans, seed = job
+    preset = randomized_for_sequence(sim_preset(PRESET_OF_PREFIX[name[0]]), seed, name)
+    simulate_sequence(root, name, scans, preset, seed)
+    return name
+
+
+def _train(config: dict, data: str, log_path: str) -> None:
+    from ros2_mos.training.trainer import TrainConfig, Trainer
+
+    with open(log_path, "a", buffering=1) as log:
+        cfg = TrainConfig.from_dict(config)
+        trainer = Trainer(cfg, data, log=lambda s: print(s, file=log), show_progress=False)
+        print(f"{cfg.setup.label}: {len(trainer.train_set)} train / {len(trainer.valid_set)} valid scans", file=log)
+        start = time.monotonic()
+        trainer.fit()
+        print(f"trained in {(time.monotonic() - start) / 60:.1f} min", file=log)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--config", required=True)
+    parser.add_argument("--data", required=True)
+    parser.add_argument("--runs", default="runs")
+    parser.add_argument("--variant", action="append", default=[], help='"NAME KEY=VALUE ..." (VALUE in YAML)')
+    parser.add_argument("--scans", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=100)
+    parser.add_argument("--jobs", type=int, default=mp.cpu_count())
+    parser.add_argument("--pack", help="write the run folders (no caches) into this tar file at the end")
+    args = parser.parse_args()
+
+    base = yaml.safe_load(Path(args.config).read_text())
+    names = list(base["train_sequences"]) + list(base["valid_sequences"])
+    unknown = [n for n in names if n[:1] not in PRESET_OF_PREFIX]
+    if unknown:
+        print(f"error: sequence names must start with b, t or e (the preset): {unknown}", file=sys.stderr)
+        return 2
+    start = time.monotonic()
+    todo = [n for n in names if not (Path(args.data) / "sequences" / n / "poses.txt").is_file()]
+    with mp.get_context("spawn").Pool(max(1, args.jobs)) as pool:
+        for name in pool.imap_unordered(_simulate, [(args.data, n, args.scans, args.seed) for n in todo]):
+            pass
+    print(f"simulated {len(todo)} of {len(names)} sequences x {args.scans} scans in {time.monotonic() - start:.0f} s",
+          flush=True)
+
+    variants = []
+    for text in args.variant or [Path(args.config).stem]:
+        name, *pairs = text.split()
+        overrides = {}
+        for pair in pairs:
+            key, sep, value = pair.partition("=")
+            if not sep:
+                print(f"error: variant {name}: {pair!r} is not KEY=VALUE", file=sys.stderr)
+                return 2
+            overrides[key] = yaml.safe_load(value)
+        variants.append((name, {**base, **overrides, "out_dir": str(Path(args.runs) / name)}))
+    runs = Path(args.runs)
+    runs.mkdir(parents=True, exist_ok=True)
+    ctx = mp.get_context("spawn")
+    procs = []
+    for k, (name, config) in enumerate(variants):
+        proc = ctx.Process(target=_train, args=(config, args.data, str(runs / f"{name}.log")))
+        proc.start()
+        procs.append(proc)
+        if k == 0:  # the first one builds the shared cache; wait until it trains
+            while proc.is_alive() and not (Path(config["out_dir"]) / "config.yaml").is_file():
+                time.sleep(2)
+    for proc in procs:
+        proc.join()
+    for name, _ in variants:
+        print(f"== {name}\n" + "".join((runs / f"{name}.log").read_text().splitlines(True)[-3:]), flush=True)
+    if args.pack:
+        with tarfile.open(args.pack, "w") as tar:
+            for name, _ in variants:
+                for f in ("best.pt", "last.pt", "metrics.csv", "config.yaml"):
+                    if (runs / name / f).is_file():
+                        tar.add(runs / name / f, arcname=f"{name}/{f}")
+                tar.add(runs / f"{name}.log", arcname=f"{name}.log")
+    print(f"total {time.monotonic() - start:.0f} s")
+    return 0 if all(p.exitcode == 0 for p in procs) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
