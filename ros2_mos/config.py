@@ -17,6 +17,20 @@ import numpy as np
 from ros2_mos.errors import ConfigError
 
 
+#: Ranges above this are no LiDAR's (and break KISS-ICP's voxel hashing: inf or 1e300 aborts it).
+MAX_RANGE_LIMIT = 1000.0
+
+
+def check_finite(what: str, **values: Any) -> None:
+    """Every value a real, finite number (NaN, inf, bools and strings are refused with one clear line)."""
+    for name, value in values.items():
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(float(value)):
+            raise ConfigError(f"{what} {name} must be a finite number, got {value!r}")
+
+
 @dataclass(frozen=True)
 class SensorConfig:
     """Geometry of the range image a rotating LiDAR is projected to (paper eq. 1).
@@ -35,6 +49,13 @@ class SensorConfig:
     max_range: float = 120.0
 
     def __post_init__(self) -> None:
+        check_finite(f"sensor {self.name!r}:", fov_up_deg=self.fov_up_deg, fov_down_deg=self.fov_down_deg,
+                     min_range=self.min_range, max_range=self.max_range)
+        if not -90.0 <= self.fov_down_deg < self.fov_up_deg <= 90.0:
+            raise ConfigError(f"sensor {self.name!r}: need -90 <= fov_down_deg < fov_up_deg <= 90, "
+                              f"got {self.fov_down_deg} and {self.fov_up_deg}")
+        if self.max_range > MAX_RANGE_LIMIT:
+            raise ConfigError(f"sensor {self.name!r}: max_range must be <= {MAX_RANGE_LIMIT:g} m, got {self.max_range}")
         if self.height <= 0 or self.width <= 0:
             raise ConfigError(f"sensor {self.name!r}: height and width must be positive, got {self.height} x {self.width}")
         if not self.fov_up_deg > self.fov_down_deg:
@@ -118,6 +139,12 @@ class ResidualConfig:
     min_range: float = 2.0
     max_range: float = 50.0
 
+    def __post_init__(self) -> None:
+        check_finite("residuals", min_range=self.min_range, max_range=self.max_range)
+        if not 0.0 <= self.min_range < self.max_range <= MAX_RANGE_LIMIT:
+            raise ConfigError(f"residuals: need 0 <= min_range < max_range <= {MAX_RANGE_LIMIT:g}, "
+                              f"got {self.min_range} and {self.max_range}")
+
 
 @dataclass(frozen=True)
 class PostprocessConfig:
@@ -135,6 +162,7 @@ class PostprocessConfig:
     def __post_init__(self) -> None:
         if self.mode not in ("knn", "nearest"):
             raise ConfigError(f"postprocess mode must be 'knn' or 'nearest', got {self.mode!r}")
+        check_finite("postprocess", sigma=self.sigma, cutoff=self.cutoff)
         if self.window < 1 or self.window % 2 == 0:
             raise ConfigError(f"postprocess window must be a positive odd number, got {self.window}")
         if not 1 <= self.k <= self.window * self.window:
@@ -169,6 +197,10 @@ class OdometryConfig:
     def __post_init__(self) -> None:
         if self.map_update not in ("all", "static"):
             raise ConfigError(f"odometry map_update must be 'all' or 'static', got {self.map_update!r}")
+        check_finite("odometry", max_range=self.max_range, min_range=self.min_range, voxel_size=self.voxel_size,
+                     max_translation_jump=self.max_translation_jump)
+        if self.max_range > MAX_RANGE_LIMIT:
+            raise ConfigError(f"odometry max_range must be <= {MAX_RANGE_LIMIT:g} m, got {self.max_range}")
         if not (0.0 <= self.min_range < self.max_range):
             raise ConfigError(f"odometry: need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
         if not 1 <= self.point_stride <= 16:
@@ -208,6 +240,7 @@ class MosConfig:
     def __post_init__(self) -> None:
         if self.geometry_backend not in ("numpy", "torch"):
             raise ConfigError(f"geometry_backend must be 'numpy' or 'torch', got {self.geometry_backend!r}")
+        check_finite("mos", threshold=self.threshold)
         if not 0.0 <= self.threshold < 1.0:
             raise ConfigError(f"threshold must be in (0, 1), or 0 for the model's own, got {self.threshold}")
         if self.intra_op_threads < 0:

@@ -7,7 +7,9 @@ anything else: the pipeline reads this to build its input and to refuse mismatch
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 from ros2_mos.config import SensorConfig
@@ -51,4 +53,48 @@ class ModelMetadata:
             raise ModelError(f"model metadata is malformed: {exc}") from None
         if len(meta.means) != 5 or len(meta.stds) != 5:
             raise ModelError("model metadata needs 5 means and 5 stds (r, x, y, z, e)")
+        values = list(meta.means) + list(meta.stds)
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values):
+            raise ModelError(f"model metadata: means and stds must be finite numbers, got {meta.means}, {meta.stds}")
+        if min(meta.stds) <= 0:
+            raise ModelError(f"model metadata: stds must be positive, got {meta.stds}")
+        if "recommended_threshold" in meta.extra:
+            check_threshold(meta.extra["recommended_threshold"], "model metadata recommended_threshold")
         return meta
+
+
+def check_threshold(value: object, what: str = "threshold") -> float:
+    """A moving-probability threshold: a finite number strictly between 0 and 1."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < 1.0:
+        raise ModelError(f"{what} must be a number in (0, 1), got {value!r}")
+    return float(value)
+
+
+def write_recommended_threshold(path: str | Path, threshold: float) -> None:
+    """Store ``recommended_threshold`` in an exported model's metadata (atomically replaces the file)."""
+    import os
+    import tempfile
+
+    import onnx
+
+    threshold = check_threshold(threshold, "recommended_threshold")
+    path = Path(path)
+    try:
+        proto = onnx.load(str(path))
+    except Exception as exc:  # onnx raises several types for unreadable files
+        raise ModelError(f"cannot read model {path}: {exc}") from None
+    entry = next((p for p in proto.metadata_props if p.key == METADATA_KEY), None)
+    if entry is None:
+        raise ModelError(f"{path} has no {METADATA_KEY} metadata (not exported by ros2-mos export)")
+    meta = ModelMetadata.from_json(entry.value)
+    meta.extra["recommended_threshold"] = threshold
+    entry.value = meta.to_json()
+    fd, tmp_name = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        onnx.save(proto, tmp)
+        tmp.chmod(0o644)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)

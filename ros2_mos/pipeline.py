@@ -19,6 +19,7 @@ from ros2_mos.config import MosConfig, SensorConfig
 from ros2_mos.errors import ConfigError, ScanError
 from ros2_mos.features import assemble_input
 from ros2_mos.inference import MosModel
+from ros2_mos.metadata import check_threshold
 from ros2_mos.memory import retain_freed_memory
 from ros2_mos.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
 from ros2_mos.postprocess import backproject
@@ -91,7 +92,8 @@ class MosPipeline:
                 f"was trained for {meta.sensor.name} at {meta.sensor.height} x {meta.sensor.width}; "
                 "use a model trained for this sensor"
             )
-        recommended = float(meta.extra.get("recommended_threshold", 0.5))
+        recommended = check_threshold(meta.extra.get("recommended_threshold", 0.5), f"{self.model.path.name}: "
+                                      "recommended_threshold in the model's metadata")
         #: The moving-probability threshold in use: the configured one, or the model's own.
         self.threshold = config.threshold or recommended
         self.means = np.asarray(meta.means, np.float32)

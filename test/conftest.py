@@ -20,8 +20,9 @@ from ros2_mos.config import SensorConfig  # noqa: E402
 TEST_SENSOR = SensorConfig("test32", height=32, width=512, fov_up_deg=10.0, fov_down_deg=-20.0, min_range=0.0, max_range=100.0)
 
 
-def make_threshold_model(path: Path, sensor: SensorConfig = TEST_SENSOR, n_past: int = 2, threshold: float = 0.08) -> Path:
-    """Export the thresholded-residual baseline as an ONNX model with metadata."""
+def make_threshold_model(path: Path, sensor: SensorConfig = TEST_SENSOR, n_past: int = 2, threshold: float = 0.08,
+                         setup=None) -> Path:
+    """Export the thresholded-residual baseline as an ONNX model with metadata (any residual ``setup``)."""
     import torch
     from torch import nn
 
@@ -30,18 +31,19 @@ def make_threshold_model(path: Path, sensor: SensorConfig = TEST_SENSOR, n_past:
     from ros2_mos.training.export import export_onnx
 
     class ResidualThreshold(nn.Module):
-        def __init__(self) -> None:
+        def __init__(self, n_frame: int) -> None:
             super().__init__()
-            self.gain, self.threshold = 200.0, threshold
+            self.gain, self.threshold, self.n_frame = 200.0, threshold, n_frame
 
         def forward(self, x: torch.Tensor) -> torch.Tensor:
-            d = x[:, 5:].amax(dim=1, keepdim=True)
+            d = x[:, self.n_frame :].abs().amax(dim=1, keepdim=True)
             moving = self.gain * (d - self.threshold)
             return torch.cat([torch.zeros_like(moving), moving], dim=1)
 
-    meta = ModelMetadata(network="residual-threshold", input=InputSetup("residual", n_past), sensor=sensor,
+    setup = setup or InputSetup("residual", n_past)
+    meta = ModelMetadata(network="residual-threshold", input=setup, sensor=sensor,
                          trained_on="none (hand-set threshold)")
-    export_onnx(ResidualThreshold(), meta, path)
+    export_onnx(ResidualThreshold(len(setup.image_channels)), meta, path)
     return path
 
 

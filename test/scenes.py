@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ros2_mos.datasets.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times
+
 
 def yaw_pose(x: float, y: float, yaw: float) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
@@ -67,3 +69,17 @@ def street_sequence(n_scans: int = 6, ego_speed: float = 1.0, car_speed: float =
         rem = np.where(moving[keep] == 1, 0.8, 0.3).astype(np.float32)
         scans.append((pts[keep].astype(np.float32), rem, moving[keep], pose))
     return scans
+
+
+def write_sequence(root, name: str, n_scans: int = 5, seed: int = 0):
+    """A SemanticKITTI sequence folder of :func:`street_sequence` (moving box 252, the rest 40)."""
+    seq = root / "sequences" / name
+    poses = []
+    for i, (pts, rem, moving, pose) in enumerate(street_sequence(n_scans, seed=seed)):
+        write_scan(seq / "velodyne" / f"{i:06d}.bin", pts, rem)
+        write_label(seq / "labels" / f"{i:06d}.label", np.where(moving == 1, 252, 40).astype(np.uint32))
+        poses.append(pose)
+    write_calib(seq / "calib.txt")
+    write_poses(seq / "poses.txt", np.asarray(poses))
+    write_times(seq / "times.txt", np.arange(n_scans) * 0.1)
+    return seq

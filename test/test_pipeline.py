@@ -210,3 +210,27 @@ def test_threshold_zero_takes_the_models_recommended_threshold(tmp_path):
     onnx.save(model, str(path))
     assert MosPipeline(MosConfig(model=str(path))).threshold == 0.8
     assert MosPipeline(MosConfig(model=str(path), threshold=0.3)).threshold == 0.3
+
+
+def test_past_offsets_and_signed_residuals_reach_the_network(tmp_path):
+    """A model taking signed residuals 1 and 3 scans back, range and z only: the pipeline keeps 3 scans,
+    builds exactly those residuals, and counts how many of them had a past scan."""
+    from ros2_mos.features import InputSetup
+    from ros2_mos.residuals import residual_images
+
+    setup = InputSetup("residual", 2, (1, 3), signed=True, image_channels=("range", "z"))
+    model = make_threshold_model(tmp_path / "offsets.onnx", setup=setup)
+    pipe = MosPipeline(MosConfig(model=str(model)))
+    assert pipe.buffer.capacity == 3 and pipe.model.channels == 4
+    scans = street_sequence(5, seed=3)
+    available = []
+    for k, (pts, rem, moving, pose) in enumerate(scans):
+        past = [(s.points, s.pose) for s in pipe.buffer.newest_first()]
+        result = pipe.process(pts, rem, 0.1 * k, pose=pose)
+        available.append(result.n_past_available)
+        expected = residual_images(result.range_image, pose, past, 2, TEST_SENSOR, pipe.config.residuals,
+                                   offsets=(1, 3), signed=True)
+        np.testing.assert_array_equal(result.residuals, expected)
+    assert available == [0, 1, 1, 2, 2]
+    assert (result.residuals < 0).any() and (result.residuals > 0).any()
+    assert not result.degraded

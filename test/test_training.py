@@ -10,9 +10,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from conftest import TEST_SENSOR  # noqa: E402
-from scenes import street_sequence  # noqa: E402
+from scenes import street_sequence, write_sequence  # noqa: E402
 
-from ros2_mos.datasets.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times  # noqa: E402
 from ros2_mos.errors import ConfigError  # noqa: E402
 from ros2_mos.features import InputSetup  # noqa: E402
 from ros2_mos.labels import IGNORE  # noqa: E402
@@ -21,19 +20,6 @@ from ros2_mos.residuals import residual_images  # noqa: E402
 from ros2_mos.training.dataset import AugmentConfig, CacheSpec, MosDataset, SequenceCache, as_range_image, flip_y, rotate_columns  # noqa: E402
 from ros2_mos.training.losses import MosLoss, inverse_frequency_weights, lovasz_softmax  # noqa: E402
 from ros2_mos.training.trainer import TrainConfig, Trainer, export_checkpoint, load_checkpoint  # noqa: E402
-
-
-def write_sequence(root, name: str, n_scans: int = 5, seed: int = 0):
-    seq = root / "sequences" / name
-    poses = []
-    for i, (pts, rem, moving, pose) in enumerate(street_sequence(n_scans, seed=seed)):
-        write_scan(seq / "velodyne" / f"{i:06d}.bin", pts, rem)
-        write_label(seq / "labels" / f"{i:06d}.label", np.where(moving == 1, 252, 40).astype(np.uint32))
-        poses.append(pose)
-    write_calib(seq / "calib.txt")
-    write_poses(seq / "poses.txt", np.asarray(poses))
-    write_times(seq / "times.txt", np.arange(n_scans) * 0.1)
-    return seq
 
 
 @pytest.fixture(scope="module")

@@ -47,3 +47,39 @@ def suite(
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(table + "\n")
+
+
+@app.command()
+def calibrate(
+    data: Path = typer.Argument(..., help="SemanticKITTI-format root or one labelled sequence folder"),
+    sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences (repeat the option)"),
+    model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped model)"),
+    config: Optional[Path] = typer.Option(None, help="The node's ROS params file; default: built-in defaults"),
+    use_poses: bool = typer.Option(False, "--use-poses", help="The dataset's poses.txt instead of KISS-ICP"),
+    write: bool = typer.Option(False, "--write", help="Store the best threshold in the model file's metadata"),
+) -> None:
+    """The moving threshold of best point IoU (after the kNN vote) on labelled validation sequences."""
+    from tqdm import tqdm
+
+    from ros2_mos.cli.core_commands import load_config
+    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, sequence_dirs
+    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.scoring.calibration import threshold_curve
+
+    pipeline = MosPipeline(load_config(config, model))
+    seqs = [SemanticKittiSequence(d) for d in sequence_dirs(data, sequences)]
+    with tqdm(total=sum(len(s) for s in seqs), desc="calibrate", unit="scan", leave=False) as bar:
+        curve = threshold_curve(pipeline, seqs, use_poses, progress=bar.update)
+    pipeline.close()
+    iou = curve.iou()
+    for t in (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9):
+        typer.echo(f"threshold {t:.2f}: moving IoU {100 * iou[int(round(t * 100))]:.1f}")
+    best, best_iou = curve.best()
+    typer.echo(f"best threshold {best:.2f}: moving IoU {100 * best_iou:.1f} "
+               f"({', '.join(s.name for s in seqs)}; model's own: {pipeline.threshold:.2f})")
+    if write:
+        from ros2_mos.metadata import write_recommended_threshold
+
+        path = pipeline.model.path
+        write_recommended_threshold(path, best)
+        typer.echo(f"stored recommended_threshold {best:.2f} in {path}")

@@ -86,6 +86,8 @@ def export(
 
     if not checkpoint.is_file():
         fail(f"checkpoint not found: {checkpoint}")
+    if threshold is not None and not 0.0 < threshold < 1.0:  # NaN fails this too
+        fail(f"--threshold must be in (0, 1), got {threshold}")
     extra = None if threshold is None else {"recommended_threshold": threshold}
     report = export_checkpoint(checkpoint, out, extra=extra)
     typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.2f} MB, ONNX vs PyTorch max abs diff {report.max_abs_diff:.1e})")

@@ -1,0 +1,108 @@
+"""The evaluation suite, the threshold calibration and the baselines as functions (hand cases + a tiny run)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import TEST_SENSOR, make_threshold_model
+from scenes import write_sequence
+
+from ros2_mos.config import MosConfig
+from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
+from ros2_mos.errors import ModelError
+from ros2_mos.metadata import check_threshold, write_recommended_threshold
+from ros2_mos.pipeline import MosPipeline
+from ros2_mos.scoring.baselines import free_space_seeds, grow_regions, residual_threshold
+from ros2_mos.scoring.calibration import BINS, ThresholdCurve, threshold_curve
+from ros2_mos.scoring.suite import RowScore, format_table, real_sequences, score_sequence
+
+
+def test_region_growing_labels_whole_regions_by_their_seed_share():
+    regions = np.array([[0, 0, 0, 0, 4, 4, -1, 7]])
+    seeds = np.array([[1, 0, 0, 0, 1, 0, 1, 0]], bool)
+    # region 0: 1 of 4 seeds (25 %), region 4: 1 of 2 (50 %), the seed at -1 is no region's, region 7: none.
+    np.testing.assert_array_equal(grow_regions(seeds, regions, 0.3), [[0, 0, 0, 0, 1, 1, 0, 0]])
+    np.testing.assert_array_equal(grow_regions(seeds, regions, 0.25), [[1, 1, 1, 1, 1, 1, 0, 0]])
+    assert not grow_regions(np.zeros_like(seeds), regions, 0.0).any()
+
+
+def test_free_space_seeds_need_both_residuals_positive_and_the_threshold_is_absolute():
+    signed = np.array([[[0.2, 0.2, -0.3]], [[0.15, -0.2, -0.3]]])
+    np.testing.assert_array_equal(free_space_seeds(signed, 0.1), [[True, False, False]])
+    np.testing.assert_array_equal(residual_threshold(signed[0], 0.25), [[False, False, True]])
+
+
+def test_threshold_curve_counts_by_hand():
+    moving = np.zeros(BINS, np.int64)
+    static = np.zeros(BINS, np.int64)
+    moving[[90, 60, 20]] = [10, 5, 5]  # 20 moving points
+    static[[95, 55, 10]] = [2, 8, 100]
+    curve = ThresholdCurve(moving, static)
+    iou = curve.iou()
+    assert iou[90] == pytest.approx(10 / (10 + 2 + 10))  # >= 0.90: tp 10, fp 2 (the 0.95 bin), fn 10
+    assert iou[60] == pytest.approx(15 / (15 + 2 + 5))
+    assert iou[50] == pytest.approx(15 / (15 + 10 + 5))
+    assert iou[20] == pytest.approx(20 / (20 + 10))
+    # best: just above the 0.55 static bin, below the 0.60 moving one (the first such threshold)
+    assert curve.best() == (pytest.approx(0.56), pytest.approx(15 / 22))
+
+
+@pytest.fixture(scope="module")
+def labelled_sequence(tmp_path_factory) -> SemanticKittiSequence:
+    return SemanticKittiSequence(write_sequence(tmp_path_factory.mktemp("score"), "00", 6, seed=2))
+
+
+def test_calibration_curve_agrees_with_the_pipelines_labels(labelled_sequence, tiny_model_path):
+    """The full kNN vote thresholded at t gives the labels the pipeline's shortcut vote gives at t."""
+    from ros2_mos.labels import to_moving_classes
+    from ros2_mos.metrics import MovingIoU
+
+    for threshold in (0.3, 0.5, 0.8):
+        pipe = MosPipeline(MosConfig(model=str(tiny_model_path), threshold=threshold))
+        curve = threshold_curve(pipe, [labelled_sequence], use_dataset_poses=True)
+        pipe.reset()
+        score = MovingIoU()
+        for frame in labelled_sequence:
+            result = pipe.process(frame.points, frame.remission, frame.timestamp, pose=frame.pose)
+            score.update(result.labels, to_moving_classes(frame.labels))
+        tp, fp, fn = (int(c[int(round(threshold * BINS))]) for c in curve.counts())
+        assert (tp, fp, fn) == (score.tp, score.fp, score.fn)
+        assert score.tp > 0
+
+
+def test_suite_row_scores_the_model_and_both_baselines_on_the_same_scans(labelled_sequence, tiny_model_path):
+    pipe = MosPipeline(MosConfig(model=str(tiny_model_path)))
+    row = score_sequence(pipe, labelled_sequence, "street", warmup=2)
+    assert row.scans == 4
+    n_points = sum(len(labelled_sequence[i].points) for i in range(2, 6))
+    for score in (row.model, row.residual, row.region_growing):
+        assert score.tp + score.fp + score.fn + score.tn == n_points
+    assert row.model.iou > 0.3 and row.residual.tp > 0
+    assert 0 < row.max_moving_fraction < 0.5
+    table = format_table([row, RowScore("total")])
+    assert "| street | 4 |" in table and "| total | 0 | **–** |" in table
+
+
+def test_real_scans_are_skipped_cleanly_when_absent(tmp_path):
+    assert real_sequences(tmp_path / "nothing") == []
+    assert real_sequences(None) == []
+    (tmp_path / "sequences" / "08a" / "velodyne").mkdir(parents=True)
+    assert real_sequences(tmp_path) == []  # no labels/: not scorable
+    (tmp_path / "sequences" / "08a" / "labels").mkdir()
+    assert [p.name for p in real_sequences(tmp_path)] == ["08a"]
+
+
+def test_recommended_threshold_is_checked_and_written(tmp_path):
+    path = make_threshold_model(tmp_path / "m.onnx")
+    write_recommended_threshold(path, 0.73)
+    assert MosPipeline(MosConfig(model=str(path))).threshold == pytest.approx(0.73)
+    for bad in (0.0, 1.0, 7.0, float("nan"), "0.5", True):
+        with pytest.raises(ModelError):
+            check_threshold(bad)
+        with pytest.raises(ModelError):
+            write_recommended_threshold(path, bad)
+    assert MosPipeline(MosConfig(model=str(path))).threshold == pytest.approx(0.73)
+
+
+def test_suite_uses_the_test_sensor(tiny_model_path):
+    assert MosPipeline(MosConfig(model=str(tiny_model_path))).sensor == TEST_SENSOR
