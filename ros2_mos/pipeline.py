@@ -29,6 +29,8 @@ from ros2_mos.residuals import relative_pose, residual_images, transform_points
 #: Above this share of points outside the sensor's vertical field of view or range limits, the
 #: cloud does not fit the configured sensor (another beam layout): its labels are flagged degraded.
 MAX_OUTSIDE_FRACTION = 0.5
+#: A model that takes remission was trained on 0..1 values; larger intensities (0..255 drivers) are flagged.
+MAX_REMISSION = 1.0 + 1e-3
 
 
 @dataclass
@@ -156,6 +158,11 @@ class MosPipeline:
             e = np.nan_to_num(rem[kept], nan=0.0, posinf=0.0, neginf=0.0)
 
         warnings: list[str] = []
+        if self.setup.uses_remission and len(e) and (float(e.max()) > MAX_REMISSION or float(e.min()) < 0.0):
+            warnings.append(
+                f"intensity spans {float(e.min()):.3g}..{float(e.max()):.3g}, outside the 0..1 remission this model "
+                "was trained on (KITTI's convention; Velodyne drivers publish 0..255, Ouster 16-bit counts): "
+                "labels may be wrong; use a model without remission input (the shipped one) or rescale")
         if self._last_stamp is not None and timestamp <= self._last_stamp:
             warnings.append(f"time went backwards ({self._last_stamp:.3f} -> {timestamp:.3f} s): buffer reset")
             self.reset()

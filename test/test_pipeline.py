@@ -234,3 +234,23 @@ def test_past_offsets_and_signed_residuals_reach_the_network(tmp_path):
     assert available == [0, 1, 1, 2, 2]
     assert (result.residuals < 0).any() and (result.residuals > 0).any()
     assert not result.degraded
+
+
+def test_intensity_outside_0_1_flags_a_remission_model_but_not_a_model_without_it(tmp_path, tiny_model_path):
+    """Velodyne drivers publish 0..255: a model trained on 0..1 remission gets flagged labels;
+    a model that does not take remission gives the same labels whatever the scale."""
+    from ros2_mos.features import InputSetup
+
+    scans = street_sequence(4, seed=1)
+    with_rem = MosPipeline(MosConfig(model=str(tiny_model_path)))
+    no_rem_model = make_threshold_model(tmp_path / "norem.onnx",
+                                        setup=InputSetup("residual", 2, image_channels=("range", "z")))
+    a, b = (MosPipeline(MosConfig(model=str(no_rem_model))) for _ in range(2))
+    for k, (pts, rem, _, pose) in enumerate(scans):
+        flagged = with_rem.process(pts, rem * 255.0, 0.1 * k, pose=pose)
+        assert flagged.degraded and any("outside the 0..1 remission" in w for w in flagged.warnings)
+        plain, scaled = a.process(pts, rem, 0.1 * k, pose=pose), b.process(pts, rem * 255.0, 0.1 * k, pose=pose)
+        assert not any("remission" in w for w in scaled.warnings)
+        np.testing.assert_array_equal(plain.labels, scaled.labels)
+    ok = with_rem.process(scans[0][0], scans[0][1], 1.0, pose=scans[0][3])
+    assert not any("remission" in w for w in ok.warnings)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -200,6 +201,39 @@ def test_intra_sweep_motion_skews_a_moving_scan_only() -> None:
     a, b = base.scan(k).scan, skew.scan(k).scan
     assert np.isfinite(b.points).all()
     assert not (len(a.points) == len(b.points) and np.allclose(a.points, b.points))
+
+
+def test_porous_foliage_lengthens_only_vegetation_ranges_by_the_set_depth() -> None:
+    """A wall of foliage (70) beside a wall (50): with penetration 1 every foliage return lies deeper, by the
+    exponential depth's mean on average; the building's returns do not move."""
+    foliage = TriangleSoup.labelled(box((1.0, 40.0, 40.0), (10.5, 20.0, 0.0)), 70)
+    wall = TriangleSoup.labelled(box((1.0, 40.0, 40.0), (10.5, -20.0, 0.0)), 50)
+    scenes = [SoupScene(foliage, np.zeros(3)), SoupScene(wall, np.zeros(3))]
+    pose = np.eye(4)
+    solid = Lidar(SMALL, NO_NOISE).scan(scenes, pose, np.random.default_rng(0))
+    porous = Lidar(SMALL, replace(NO_NOISE, vegetation_penetration=1.0, vegetation_depth=0.8)).scan(
+        scenes, pose, np.random.default_rng(0))
+    assert len(solid.points) == len(porous.points) and (solid.sem == porous.sem).all()
+    grow = np.linalg.norm(porous.points, axis=1) - np.linalg.norm(solid.points, axis=1)
+    veg = solid.sem == 70
+    assert veg.sum() > 500 and (solid.sem == 50).sum() > 500
+    assert (grow[veg] > 0).all() and grow[veg].mean() == pytest.approx(0.8, rel=0.1)
+    assert np.abs(grow[~veg]).max() < 1e-5
+    randomized = SensorEffects()  # the presets stay solid: their scans are unchanged
+    assert randomized.vegetation_penetration == 0.0
+    with pytest.raises(ConfigError):
+        SensorEffects(vegetation_penetration=1.5)
+
+
+def test_randomized_presets_vary_by_sequence_and_repeat_by_seed() -> None:
+    from ros2_mos.sim.presets import randomized_for_sequence
+
+    base = sim_preset("benchmark")
+    a, b = randomized_for_sequence(base, 100, "b00"), randomized_for_sequence(base, 100, "b01")
+    assert a == randomized_for_sequence(base, 100, "b00") and a != b
+    assert a.street == base.street and a.traffic == base.traffic
+    for p in (a, b):
+        assert 0.005 <= p.effects.range_sigma <= 0.04 and 0.2 <= p.effects.vegetation_penetration <= 0.8
 
 
 def test_bad_arguments_raise_typed_errors(tmp_path: Path) -> None:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ros2_mos.config import SensorConfig
+from ros2_mos.sim.objects import VEGETATION
 from ros2_mos.sim.presets import SensorEffects
 from ros2_mos.sim.raycast import SoupScene, cast_nearest
 
@@ -98,6 +99,10 @@ class Lidar:
         dist = hits.distance
         cos_inc = np.abs(np.einsum("ij,ij->i", hits.normal, dirs))
         r = dist + rng.normal(0.0, eff.range_sigma, self.n_rays) * (1.0 + np.minimum(dist, 1e3) / 100.0)
+        if eff.vegetation_penetration > 0 and eff.vegetation_depth > 0:
+            foliage = np.flatnonzero(sem == VEGETATION)
+            into = foliage[rng.random(len(foliage)) < eff.vegetation_penetration]
+            r[into] += rng.exponential(eff.vegetation_depth, len(into))
         p_drop = (
             eff.dropout
             + eff.grazing_dropout * np.clip(1.0 - cos_inc / 0.1, 0.0, 1.0)

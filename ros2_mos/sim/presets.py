@@ -215,11 +215,18 @@ class SensorEffects:
     max_range: float = 120.0
     sensor_height: float = 1.73
     intra_sweep_motion: bool = False
+    # Foliage is porous: a ray that hits a crown or hedge goes on into it with this probability,
+    # by an exponentially distributed extra depth of this mean (m), anew in every scan. Real
+    # vegetation's ranges flicker from scan to scan like that, which residuals see; 0 = solid.
+    vegetation_penetration: float = 0.0
+    vegetation_depth: float = 0.0
 
     def __post_init__(self) -> None:
         if self.range_sigma < 0 or self.remission_sigma < 0:
             raise ConfigError("range_sigma and remission_sigma must be >= 0")
-        for name in ("dropout", "grazing_dropout", "far_dropout"):
+        if not 0.0 <= self.vegetation_depth <= 10.0:
+            raise ConfigError(f"vegetation_depth must be in [0, 10] m, got {self.vegetation_depth}")
+        for name in ("dropout", "grazing_dropout", "far_dropout", "vegetation_penetration"):
             _check_prob(name, getattr(self, name))
         if not 0 <= self.ego_clearance < self.max_range:
             raise ConfigError(f"need 0 <= ego_clearance < max_range, got {self.ego_clearance}, {self.max_range}")
@@ -294,7 +301,8 @@ def randomized(preset: SimPreset, rng: np.random.Generator) -> SimPreset:
     For training data (domain randomisation): real sensors differ in noise, dropout and
     skew, so a network should not learn one simulated sensor's exact statistics.  The
     ranges bracket the presets' own values; about half of the sequences are skewed
-    (each column cast from the pose at its firing time), as unprocessed driver output is.
+    (each column cast from the pose at its firing time), as unprocessed driver output is,
+    and foliage is porous (its ranges flicker from scan to scan, as real trees' do).
     """
     u = rng.uniform
     effects = replace(
@@ -306,6 +314,8 @@ def randomized(preset: SimPreset, rng: np.random.Generator) -> SimPreset:
         remission_sigma=float(u(0.01, 0.08)),
         sensor_height=float(u(1.5, 2.1)),
         intra_sweep_motion=bool(rng.random() < 0.5),
+        vegetation_penetration=float(u(0.2, 0.8)),
+        vegetation_depth=float(u(0.2, 1.5)),
     )
     ego = replace(preset.ego, body_vibration_deg=float(u(0.02, 0.3)))
     return replace(preset, effects=effects, ego=ego)
