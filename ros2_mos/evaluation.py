@@ -30,8 +30,8 @@ def predict_sequence(
     pipeline: MosPipeline, sequence: SemanticKittiSequence, use_dataset_poses: bool = False
 ) -> Iterator[ScanPrediction]:
     """Label every scan of a sequence in order (the pipeline is reset first)."""
-    if use_dataset_poses and sequence.poses is None:
-        raise DatasetError(f"{sequence.root}: --use-poses needs poses.txt")
+    if use_dataset_poses:
+        sequence.require_poses("--use-poses")
     pipeline.reset()
     for frame in sequence:
         pose = frame.pose if use_dataset_poses else None
@@ -54,14 +54,22 @@ def evaluate_predictions(
     gt_root: str | Path,
     sequences: list[str] | None = None,
     progress: Callable[[Iterator], Iterator] = lambda it: it,
+    skipped: list[str] | None = None,
 ) -> dict[str, MovingIoU]:
-    """Moving IoU per sequence for a submission folder against SemanticKITTI ground truth."""
+    """Moving IoU per sequence for a submission folder against SemanticKITTI ground truth.
+
+    Without ``sequences`` every ground-truth sequence that has predictions is scored;
+    the names of those without predictions are appended to ``skipped`` (so that a
+    caller can say the total covers only part of the data).
+    """
     gt_dirs = {p.name: p for p in sequence_dirs(gt_root, sequences)}
     scores: dict[str, MovingIoU] = {}
     for name, gt_dir in gt_dirs.items():
         pred_dir = prediction_dir(pred_root, name)
         if not pred_dir.is_dir():
             if sequences is None:
+                if skipped is not None:
+                    skipped.append(name)
                 continue
             raise DatasetError(f"no predictions for sequence {name}: {pred_dir} is missing")
         gt_seq = SemanticKittiSequence(gt_dir)
@@ -69,9 +77,10 @@ def evaluate_predictions(
             raise DatasetError(f"{gt_dir}: no labels/ to evaluate against")
         score = MovingIoU()
         for i in progress(range(len(gt_seq))):
-            gt = read_label(gt_seq.label_path(i))
+            n_points = gt_seq.scan_files[i].stat().st_size // 16
+            gt = read_label(gt_seq.label_path(i), n_points)  # a short ground-truth file is named as such
             pred_file = pred_dir / (gt_seq.scan_files[i].stem + ".label")
-            pred = read_label(pred_file, len(gt))
+            pred = read_label(pred_file, n_points)
             score.update(semantic_ids(pred) == SUBMISSION_MOVING_ID, to_moving_classes(gt))
         scores[name] = score
     if not scores:

@@ -52,3 +52,42 @@ def test_missing_and_malformed_files_raise(tmp_path):
     write_label(tmp_path / "labels" / "000000.label", np.zeros(4, np.uint32))
     with pytest.raises(DatasetError, match="4 labels for 5 points"):
         SemanticKittiSequence(tmp_path)[0]
+
+
+@pytest.mark.parametrize("extra", [1, 2, 3, 17])
+def test_scan_sizes_that_are_not_whole_points_are_named_with_their_byte_size(tmp_path, extra):
+    (tmp_path / "velodyne").mkdir()
+    (tmp_path / "velodyne" / "000000.bin").write_bytes(b"\0" * (32 + extra))
+    with pytest.raises(DatasetError, match=f"size {32 + extra} bytes is not a multiple of 16"):
+        SemanticKittiSequence(tmp_path)[0]
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("times.txt", "0.0\nabc\n", "times.txt: not a table of numbers"),
+    ("times.txt", "0.0\n0.2\n0.1\n", r"times must increase, but line 3 \(0.1 s\) does not come after line 2"),
+    ("times.txt", "0.0\nnan\n0.2\n", "line 2 is not a finite time"),
+    ("times.txt", b"\xff\xfe\x00", "not a UTF-8 text file"),
+    ("calib.txt", "Tr: 1 2 x\n", "'Tr' holds text"),
+])
+def test_malformed_text_files_are_one_line_errors(tmp_path, name, content, message):
+    for i in range(3):
+        write_scan(tmp_path / "velodyne" / f"{i:06d}.bin", np.ones((5, 3), np.float32))
+    write_poses(tmp_path / "poses.txt", np.tile(np.eye(4), (3, 1, 1)))
+    path = tmp_path / name
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(DatasetError, match=message):
+        seq = SemanticKittiSequence(tmp_path)
+        seq.require_poses()
+
+
+def test_a_bad_poses_file_matters_only_where_poses_are_used(tmp_path):
+    for i in range(3):
+        write_scan(tmp_path / "velodyne" / f"{i:06d}.bin", np.ones((5, 3), np.float32))
+    (tmp_path / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")  # one pose for three scans
+    seq = SemanticKittiSequence(tmp_path)  # opens: infer without --use-poses does not need them
+    assert seq[2].pose is None
+    with pytest.raises(DatasetError, match="--use-poses need poses.txt: .*1 poses for 3 scans"):
+        seq.require_poses("--use-poses")
+    (tmp_path / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 nan\n" * 3)
+    with pytest.raises(DatasetError, match="line 1 holds a non-finite number"):
+        SemanticKittiSequence(tmp_path).require_poses()

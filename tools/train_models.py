@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import signal
 import sys
 import tarfile
 import time
@@ -91,7 +92,15 @@ def main() -> int:
     runs = Path(args.runs)
     runs.mkdir(parents=True, exist_ok=True)
     ctx = mp.get_context("spawn")
-    procs = []
+    procs: list = []
+
+    def stop(signum: int, _frame: object) -> None:  # the training processes end with this one
+        for proc in procs:
+            proc.terminate()
+        sys.exit(128 + signum)
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
     for k, (name, config) in enumerate(variants):
         proc = ctx.Process(target=_train, args=(config, args.data, str(runs / f"{name}.log")))
         proc.start()

@@ -286,8 +286,8 @@ def build_maps(
     """
     from ros2_mos.pipeline import MosPipeline
 
-    if mapping.poses == "gt" and sequence.poses is None:
-        raise DatasetError(f"{sequence.root}: mapping with ground-truth poses needs poses.txt")
+    if mapping.poses == "gt":
+        sequence.require_poses("mapping with ground-truth poses")
     cfg = dataclasses.replace(config, odometry=dataclasses.replace(config.odometry, map_update="static"))
     pipeline = MosPipeline(cfg, model)
     pipeline.reset()

@@ -129,11 +129,9 @@ def run_odometry(
 
 def ground_truth_camera_poses(sequence: SemanticKittiSequence) -> tuple[np.ndarray, np.ndarray | None]:
     """The sequence's ground truth in the devkit's frame, and the calibration to get there (or None)."""
-    if sequence.poses is None:
-        raise DatasetError(f"{sequence.root}: no poses.txt, so there is no ground truth to evaluate against")
+    gt = sequence.require_poses("the odometry's ground truth")
     calib = sequence.root / "calib.txt"
     tr = read_calib(calib) if calib.is_file() else None
-    gt = sequence.poses[: len(sequence)]
     return (gt if tr is None else to_camera_frame(gt, tr)), tr
 
 

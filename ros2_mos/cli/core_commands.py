@@ -69,13 +69,17 @@ def evaluate(
     from ros2_mos.evaluation import evaluate_predictions
     from ros2_mos.metrics import MovingIoU
 
-    scores = evaluate_predictions(pred_dir, gt_dir, sequences)
+    skipped: list[str] = []
+    scores = evaluate_predictions(pred_dir, gt_dir, sequences, skipped=skipped)
     total = MovingIoU()
     typer.echo(f"{'sequence':>10} {'IoU':>7} {'TP':>10} {'FP':>10} {'FN':>10}")
     for name, s in scores.items():
         total = total + s
         typer.echo(f"{name:>10} {_pct(s.iou):>7} {s.tp:>10} {s.fp:>10} {s.fn:>10}")
     typer.echo(f"{'all':>10} {_pct(total.iou):>7} {total.tp:>10} {total.fp:>10} {total.fn:>10}")
+    if skipped:
+        typer.echo(f"note: 'all' covers {len(scores)} of {len(scores) + len(skipped)} ground-truth sequences; "
+                   f"no predictions for {', '.join(skipped)}")
 
 
 def _pct(x: float) -> str:

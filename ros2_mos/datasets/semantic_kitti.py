@@ -38,10 +38,10 @@ def read_scan(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"scan file not found: {path}")
-    data = np.fromfile(path, dtype=np.float32)
-    if data.size % 4:
-        raise DatasetError(f"{path}: size {data.size * 4} bytes is not a multiple of 16 (x, y, z, remission float32)")
-    return data.reshape(-1, 4)
+    size = path.stat().st_size
+    if size % 16:
+        raise DatasetError(f"{path}: size {size} bytes is not a multiple of 16 (x, y, z, remission float32)")
+    return np.fromfile(path, dtype=np.float32).reshape(-1, 4)
 
 
 def write_scan(path: str | Path, points: np.ndarray, remission: np.ndarray | None = None) -> None:
@@ -77,10 +77,15 @@ def read_calib(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"calib file not found: {path}")
-    for line in path.read_text().splitlines():
+    for line in _read_text(path).splitlines():
         key, _, values = line.partition(":")
         if key.strip() == "Tr":
-            numbers = [float(v) for v in values.split()]
+            try:
+                numbers = [float(v) for v in values.split()]
+            except ValueError:
+                raise DatasetError(f"{path}: 'Tr' holds text that is not a number") from None
+            if not all(np.isfinite(numbers)):
+                raise DatasetError(f"{path}: 'Tr' holds non-finite numbers")
             if len(numbers) != 12:
                 raise DatasetError(f"{path}: 'Tr' needs 12 numbers, got {len(numbers)}")
             tr = np.eye(4)
@@ -101,9 +106,12 @@ def read_poses(path: str | Path, tr: np.ndarray | None = None) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"poses file not found: {path}")
-    rows = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    rows = _load_numbers(path, 2)
     if rows.shape[1] != 12:
         raise DatasetError(f"{path}: each pose line needs 12 numbers, got {rows.shape[1]}")
+    bad = np.flatnonzero(~np.isfinite(rows).all(axis=1))
+    if len(bad):
+        raise DatasetError(f"{path}: line {bad[0] + 1} holds a non-finite number")
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     poses[:, :3, :4] = rows.reshape(-1, 3, 4)
     if tr is not None:
@@ -123,7 +131,40 @@ def read_times(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"times file not found: {path}")
-    return np.loadtxt(path, dtype=np.float64, ndmin=1)
+    times = _load_numbers(path, 1)
+    if times.ndim != 1:
+        raise DatasetError(f"{path}: expected one time per line, got {times.shape[1]} columns")
+    if not np.isfinite(times).all():
+        raise DatasetError(f"{path}: line {int(np.flatnonzero(~np.isfinite(times))[0]) + 1} is not a finite time")
+    back = np.flatnonzero(np.diff(times) <= 0)
+    if len(back):
+        k = int(back[0])
+        raise DatasetError(f"{path}: times must increase, but line {k + 2} ({times[k + 1]:g} s) does not come "
+                           f"after line {k + 1} ({times[k]:g} s)")
+    return times
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: not a UTF-8 text file") from None
+
+
+def _load_numbers(path: Path, ndmin: int) -> np.ndarray:
+    """A whitespace-separated table of numbers; text, ragged rows or binary content are one-line errors."""
+    import warnings
+
+    text = _read_text(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: checked below
+            rows = np.loadtxt(text.splitlines(), dtype=np.float64, ndmin=ndmin)
+    except ValueError as exc:
+        raise DatasetError(f"{path}: not a table of numbers ({str(exc).splitlines()[0]})") from None
+    if rows.size == 0:
+        raise DatasetError(f"{path}: empty")
+    return rows
 
 
 def write_times(path: str | Path, times: np.ndarray) -> None:
@@ -156,7 +197,12 @@ class SemanticKittiSequence:
         self.name = self.root.name
         label_dir = self.root / "labels"
         self.has_labels = label_dir.is_dir() and any(label_dir.glob("*.label"))
-        self.poses = self._load_poses()
+        # Poses are only needed by some uses (--use-poses, training, the applications): a bad
+        # poses.txt is reported when they are asked for (require_poses), not when the folder opens.
+        try:
+            self.poses, self.poses_problem = self._load_poses(), ""
+        except DatasetError as exc:
+            self.poses, self.poses_problem = None, str(exc)
         times_file = self.root / "times.txt"
         self.times = read_times(times_file) if times_file.is_file() else np.arange(len(self.scan_files)) * 0.1
         if len(self.times) < len(self.scan_files):
@@ -175,6 +221,13 @@ class SemanticKittiSequence:
 
     def __len__(self) -> int:
         return len(self.scan_files)
+
+    def require_poses(self, why: str = "the dataset's poses") -> np.ndarray:
+        """The (N, 4, 4) LiDAR poses, or a DatasetError saying why there are none."""
+        if self.poses is None:
+            reason = self.poses_problem or f"no {self.root / 'poses.txt'}"
+            raise DatasetError(f"{why} need poses.txt: {reason}")
+        return self.poses[: len(self)]
 
     def label_path(self, index: int) -> Path:
         return self.root / "labels" / (self.scan_files[index].stem + ".label")

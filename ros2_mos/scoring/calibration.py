@@ -62,8 +62,8 @@ def threshold_curve(pipeline: MosPipeline, sequences: Iterable[SemanticKittiSequ
     for sequence in sequences:
         if not sequence.has_labels:
             raise DatasetError(f"{sequence.root}: no labels/ to calibrate on")
-        if use_dataset_poses and sequence.poses is None:
-            raise DatasetError(f"{sequence.root}: no poses.txt for --use-poses")
+        if use_dataset_poses:
+            sequence.require_poses("--use-poses")
         pipeline.reset()
         for frame in sequence:
             result = pipeline.process(frame.points, frame.remission, frame.timestamp,

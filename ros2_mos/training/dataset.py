@@ -228,9 +228,7 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
 
 def _sequence_poses(sequence: SemanticKittiSequence, source: str, sensor: SensorConfig) -> np.ndarray:
     if source == "dataset":
-        if sequence.poses is None:
-            raise DatasetError(f"{sequence.root}: no poses.txt; use poses: kiss_icp")
-        return sequence.poses[: len(sequence)]
+        return sequence.require_poses("training with 'poses: dataset' (else use poses: kiss_icp)")
     from ros2_mos.config import OdometryConfig
     from ros2_mos.odometry import KissIcpOdometry
 

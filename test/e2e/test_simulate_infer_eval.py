@@ -61,6 +61,29 @@ def test_pipeline_odometry_stays_close_to_ground_truth(dataset, vlp16_model):
     assert error < 0.05 * travelled + 0.3, f"max position error {error:.2f} m over {travelled:.1f} m"
 
 
+def test_eval_says_when_it_covers_only_part_of_the_ground_truth(dataset, tmp_path):
+    """Two ground-truth sequences, predictions for one: 'all' is the one, and the output says so; a short
+    ground-truth label file is named as the ground truth's fault, not the prediction's."""
+    import shutil
+
+    from ros2_mos.datasets.semantic_kitti import write_label
+
+    gt = tmp_path / "gt"
+    for name in ("00", "01"):
+        shutil.copytree(dataset / "sequences" / "00", gt / "sequences" / name)
+    pred = tmp_path / "pred"
+    seq = SemanticKittiSequence(gt / "sequences" / "00")
+    for i in range(len(seq)):
+        write_label(pred / "sequences" / "00" / "predictions" / f"{i:06d}.label", np.full(len(seq[i].points), 9))
+    result = runner.invoke(app, ["eval", str(pred), str(gt)])
+    assert result.exit_code == 0, result.output
+    assert "'all' covers 1 of 2 ground-truth sequences; no predictions for 01" in result.output
+    short = gt / "sequences" / "00" / "labels" / "000003.label"
+    short.write_bytes(short.read_bytes()[:-8])
+    result = runner.invoke(app, ["eval", str(pred), str(gt)])
+    assert result.exit_code != 0 and "000003.label" in str(result.exception) and "labels/" in str(result.exception)
+
+
 def test_eval_of_missing_predictions_is_a_clear_error(dataset, tmp_path):
     result = runner.invoke(app, ["eval", str(tmp_path), str(dataset)])
     assert result.exit_code != 0
