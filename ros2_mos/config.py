@@ -158,11 +158,16 @@ class PostprocessConfig:
     window: int = 5
     sigma: float = 1.0
     cutoff: float = 1.0
+    # Segment consistency (ros2_mos.segments.fill_segments): a connected non-ground segment of the
+    # range image of which at least this share is moving is labelled moving as a whole; 0 = off.
+    segment_fill: float = 0.0
 
     def __post_init__(self) -> None:
         if self.mode not in ("knn", "nearest"):
             raise ConfigError(f"postprocess mode must be 'knn' or 'nearest', got {self.mode!r}")
-        check_finite("postprocess", sigma=self.sigma, cutoff=self.cutoff)
+        check_finite("postprocess", sigma=self.sigma, cutoff=self.cutoff, segment_fill=self.segment_fill)
+        if not 0.0 <= self.segment_fill <= 1.0:
+            raise ConfigError(f"postprocess segment_fill must be in [0, 1] (0 = off), got {self.segment_fill}")
         if self.window < 1 or self.window % 2 == 0:
             raise ConfigError(f"postprocess window must be a positive odd number, got {self.window}")
         if not 1 <= self.k <= self.window * self.window:

@@ -25,6 +25,7 @@ from ros2_mos.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
 from ros2_mos.postprocess import backproject
 from ros2_mos.projection import RangeImage, check_points, finite_mask, project
 from ros2_mos.residuals import relative_pose, residual_images, transform_points
+from ros2_mos.segments import fill_segments
 
 #: Above this share of points outside the sensor's vertical field of view or range limits, the
 #: cloud does not fit the configured sensor (another beam layout): its labels are flagged degraded.
@@ -217,6 +218,10 @@ class MosPipeline:
         network_input = assemble_input(image, extra, self.setup, self.means, self.stds)
         prob_image = self.model.predict(network_input)
         watch.lap("inference")
+
+        if self.config.postprocess.segment_fill > 0:
+            prob_image = fill_segments(prob_image, image.range, image.xyz[..., 2], self.threshold,
+                                       self.config.postprocess.segment_fill)
 
         if self._torch is not None and self.config.postprocess.mode == "knn":
             point_prob = self._torch.knn(prob_image, image.range, image.pixels, self.config.postprocess)

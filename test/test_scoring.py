@@ -12,9 +12,18 @@ from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
 from ros2_mos.errors import ModelError
 from ros2_mos.metadata import check_threshold, write_recommended_threshold
 from ros2_mos.pipeline import MosPipeline
-from ros2_mos.scoring.baselines import free_space_seeds, grow_regions, residual_threshold
+from ros2_mos.scoring.baselines import (
+    free_space_seeds,
+    grow_regions,
+    residual_threshold,
+)
 from ros2_mos.scoring.calibration import BINS, ThresholdCurve, threshold_curve
-from ros2_mos.scoring.suite import RowScore, format_table, real_sequences, score_sequence
+from ros2_mos.scoring.suite import (
+    RowScore,
+    format_table,
+    real_sequences,
+    score_sequence,
+)
 
 
 def test_region_growing_labels_whole_regions_by_their_seed_share():

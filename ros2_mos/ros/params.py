@@ -82,6 +82,9 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("postprocess.sigma", _DEF_POST.sigma, "kNN: Gaussian weight of the window", min=0.0),
     ParamSpec("postprocess.cutoff", _DEF_POST.cutoff, "kNN: neighbours farther than this in range do not vote (m)",
               min=0.0),
+    ParamSpec("postprocess.segment_fill", _DEF_POST.segment_fill,
+              "a connected non-ground range-image segment at least this share moving is labelled moving whole; "
+              "0 = off", min=0.0, max=1.0),
     ParamSpec("odometry.max_range", _DEF_ODOM.max_range, "KISS-ICP: ignore points beyond (m)", min=0.0),
     ParamSpec("odometry.min_range", _DEF_ODOM.min_range, "KISS-ICP: ignore points closer than (m)", min=0.0),
     ParamSpec("odometry.voxel_size", 0.0, "KISS-ICP voxel size (m); 0 = max_range / 100", min=0.0),

@@ -24,48 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-def ground_mask(raw: np.ndarray, margin: float = 0.3) -> np.ndarray:
-    """Pixels on the ground: z below the 10th percentile of near points' z, plus a margin."""
-    r, z = raw[0], raw[3]
-    near = (r > 0) & (r < 20.0)
-    if not near.any():
-        return np.zeros_like(r, bool)
-    ground_z = float(np.percentile(z[near], 10))
-    return (r > 0) & (z < ground_z + margin)
-
-
-def connected_regions(valid: np.ndarray, rng: np.ndarray, rel: float, min_jump: float = 0.3) -> np.ndarray:
-    """Connected components of ``valid`` pixels linked where neighbouring ranges are close.
-
-    Union-find in numpy (no scipy): hook every edge's larger root onto its smaller
-    one, compress paths by pointer jumping, repeat until no edge joins two roots
-    (a few rounds).  The image wraps around in azimuth.  Returns an (H, W) int64
-    label (-1 where not valid); pixels of one region share the smallest pixel id.
-    """
-    h, w = valid.shape
-    ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
-    right_r = np.roll(rng, -1, axis=1)
-    link_right = valid & np.roll(valid, -1, axis=1)
-    link_right &= np.abs(rng - right_r) < np.maximum(min_jump, rel * np.minimum(rng, right_r))
-    link_down = valid[:-1] & valid[1:]
-    link_down &= np.abs(rng[:-1] - rng[1:]) < np.maximum(min_jump, rel * np.minimum(rng[:-1], rng[1:]))
-    a = np.concatenate([ids[link_right], ids[:-1][link_down]])
-    b = np.concatenate([np.roll(ids, -1, axis=1)[link_right], ids[1:][link_down]])
-    parent = ids.reshape(-1).copy()
-    while len(a):
-        pa, pb = parent[a], parent[b]
-        differ = pa != pb
-        if not differ.any():
-            break
-        a, b, pa, pb = a[differ], b[differ], pa[differ], pb[differ]
-        np.minimum.at(parent, np.maximum(pa, pb), np.minimum(pa, pb))
-        while True:
-            jumped = parent[parent]
-            if np.array_equal(jumped, parent):
-                break
-            parent = jumped
-    return np.where(valid, parent.reshape(h, w), -1)
+from ros2_mos.segments import connected_regions, ground_mask
 
 
 def residual_threshold(newest_residual: np.ndarray, tau: float) -> np.ndarray:

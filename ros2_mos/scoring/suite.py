@@ -36,7 +36,11 @@ from ros2_mos.pipeline import MosPipeline
 from ros2_mos.postprocess import backproject
 from ros2_mos.projection import finite_mask, project
 from ros2_mos.residuals import residual_images
-from ros2_mos.scoring.baselines import RegionGrowingParams, region_growing, residual_threshold
+from ros2_mos.scoring.baselines import (
+    RegionGrowingParams,
+    region_growing,
+    residual_threshold,
+)
 
 #: Held-out simulation seeds per preset (never used for training data).
 SIM_SEEDS: dict[str, tuple[int, ...]] = {

@@ -1,0 +1,86 @@
+"""Range-image segments: connected regions of non-ground pixels, and labels made consistent over them.
+
+A moving car's body often has no residual of its own: when it drives parallel to
+the sensor its side slides along itself and keeps its range, and only its front and
+back edges light up.  Its points still form one connected segment of the range image
+(neighbours whose ranges differ by less than a few percent).  :func:`fill_segments`
+labels a whole segment moving when enough of it is, the "a segment moves as a whole"
+consistency that geometric MOS methods use.  The baselines' region growing uses the
+same segments (:mod:`ros2_mos.scoring.baselines`).  numpy only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def ground_mask(raw: np.ndarray, margin: float = 0.3) -> np.ndarray:
+    """Pixels on the ground: z below the 10th percentile of near points' z, plus a margin."""
+    r, z = raw[0], raw[3]
+    near = (r > 0) & (r < 20.0)
+    if not near.any():
+        return np.zeros_like(r, bool)
+    ground_z = float(np.percentile(z[near], 10))
+    return (r > 0) & (z < ground_z + margin)
+
+
+def connected_regions(valid: np.ndarray, rng: np.ndarray, rel: float, min_jump: float = 0.3) -> np.ndarray:
+    """Connected components of ``valid`` pixels linked where neighbouring ranges are close.
+
+    Union-find in numpy (no scipy): hook every edge's larger root onto its smaller
+    one, compress paths by pointer jumping, repeat until no edge joins two roots
+    (a few rounds).  The image wraps around in azimuth.  Returns an (H, W) int64
+    label (-1 where not valid); pixels of one region share the smallest pixel id.
+    """
+    h, w = valid.shape
+    ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
+    right_r = np.roll(rng, -1, axis=1)
+    link_right = valid & np.roll(valid, -1, axis=1)
+    link_right &= np.abs(rng - right_r) < np.maximum(min_jump, rel * np.minimum(rng, right_r))
+    link_down = valid[:-1] & valid[1:]
+    link_down &= np.abs(rng[:-1] - rng[1:]) < np.maximum(min_jump, rel * np.minimum(rng[:-1], rng[1:]))
+    a = np.concatenate([ids[link_right], ids[:-1][link_down]])
+    b = np.concatenate([np.roll(ids, -1, axis=1)[link_right], ids[1:][link_down]])
+    parent = ids.reshape(-1).copy()
+    while len(a):
+        pa, pb = parent[a], parent[b]
+        differ = pa != pb
+        if not differ.any():
+            break
+        a, b, pa, pb = a[differ], b[differ], pa[differ], pb[differ]
+        np.minimum.at(parent, np.maximum(pa, pb), np.minimum(pa, pb))
+        while True:
+            jumped = parent[parent]
+            if np.array_equal(jumped, parent):
+                break
+            parent = jumped
+    return np.where(valid, parent.reshape(h, w), -1)
+
+
+def fill_segments(prob_image: np.ndarray, range_image: np.ndarray, z_image: np.ndarray, threshold: float,
+                  fill_fraction: float, rel_jump: float = 0.05, margin_columns: int = 32) -> np.ndarray:
+    """The probability image with every non-ground segment that is at least ``fill_fraction`` moving raised
+    to the threshold (so that all of it is labelled moving); other pixels are unchanged.
+
+    Only the columns within ``margin_columns`` of a moving pixel are segmented (the rest cannot change).
+    """
+    moving = (prob_image >= threshold) & (range_image > 0)
+    if not moving.any():
+        return prob_image
+    near = np.zeros(range_image.shape[1], bool)
+    cols = np.flatnonzero(moving.any(axis=0))
+    offsets = np.arange(-margin_columns, margin_columns + 1)
+    near[(cols[:, None] + offsets[None, :]).ravel() % range_image.shape[1]] = True
+    raw = np.stack([range_image, range_image, range_image, z_image])  # ground_mask reads range (0) and z (3)
+    valid = (range_image > 0) & ~ground_mask(raw) & near[None, :]
+    regions = connected_regions(valid, range_image, rel_jump)
+    inside = regions >= 0
+    lab = regions[inside]
+    size = np.bincount(lab, minlength=regions.size)
+    hits = np.bincount(regions[moving & inside], minlength=regions.size)
+    filled = (hits > 0) & (hits >= fill_fraction * np.maximum(size, 1))
+    out = prob_image.copy()
+    raise_to = np.zeros(range_image.shape, bool)
+    raise_to[inside] = filled[lab]
+    out[raise_to] = np.maximum(out[raise_to], threshold)
+    return out
