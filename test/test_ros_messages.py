@@ -150,6 +150,13 @@ def test_processor_outputs_and_skips(tiny_model_path):
     with pytest.raises(SkippedScan, match="min_points") as info:
         proc.process(tiny)
     assert info.value.reason == "too_few_points"
+    # Far more points than the sensor has pixels (TEST_SENSOR: 32 x 512 = 16k; 4 per pixel allowed): refused
+    # before decoding, so one huge cloud cannot grow the node's memory.
+    huge = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18 + 11 * 10**8 + 1, "v")),
+                     np.ones((4 * 32 * 512 + 1, 3), np.float32), None, field_factory=types.point_field)
+    with pytest.raises(SkippedScan, match="65537 points, more than 4 per pixel") as info:
+        proc.process(huge)
+    assert info.value.reason == "too_many_points"
     broken = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18 + 12 * 10**8, "v")), *seq[0][:2],
                        field_factory=types.point_field)
     broken.row_step = 3

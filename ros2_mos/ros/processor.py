@@ -57,6 +57,10 @@ class ScanOutput:
         return self.points[self.result.valid & (self.result.labels == 0)]
 
 
+#: Clouds with more points than this many per range-image pixel are refused (a 64 x 2048 sensor: 524k).
+MAX_POINTS_PER_PIXEL = 4
+
+
 class ScanProcessor:
     """Decode, label, and build the output messages of a stream of PointCloud2 from one sensor."""
 
@@ -80,6 +84,12 @@ class ScanProcessor:
         stamp = m.stamp_ns(msg.header.stamp)
         frame_id = str(msg.header.frame_id)
         view = view_cloud(msg)
+        sensor = self.pipeline.sensor
+        limit = MAX_POINTS_PER_PIXEL * sensor.height * sensor.width
+        if view.size > limit:  # refused before decoding: per-scan memory stays bounded by the sensor
+            raise SkippedScan("too_many_points", f"cloud at {stamp * 1e-9:.3f} s has {view.size} points, more than "
+                              f"{MAX_POINTS_PER_PIXEL} per pixel of the {sensor.name} range image "
+                              f"({sensor.height} x {sensor.width}): not a scan of this sensor, skipped")
         points, intensity, valid_index = decode_xyz_intensity(view)
         t_decode = (time.perf_counter() - t0) * 1e3
         if len(points) < self.settings.min_points:
