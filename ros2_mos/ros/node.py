@@ -142,10 +142,22 @@ class MosNode(Node):
         self._worker = threading.Thread(target=self._work, name="mos_worker", daemon=True)
         self._worker.start()
         p = pipeline
+        outputs = ", ".join(self._pubs[key].topic_name for key in OUTPUT_KEYS)  # as resolved, remappings included
         self.get_logger().info(
             f"ready in {time.perf_counter() - t0:.2f} s: model {p.model.path.name} ({p.model.metadata.network}, "
-            f"{p.setup.label}, {p.model.provider}), sensor {p.sensor.name} {p.sensor.height}x{p.sensor.width}; "
-            f"{s.input_topic} ({'reliable' if s.reliable else 'best effort'}) -> {', '.join(s.topics.values())}")
+            f"{p.setup.label}, threshold {p.threshold:.2f}, {p.model.provider}), sensor {p.sensor.name} "
+            f"{p.sensor.height}x{p.sensor.width}; {self._sub.topic_name} "
+            f"({'reliable' if s.reliable else 'best effort'}) -> {outputs}")
+        # Discovery takes a moment: look for a namesake once it had time to be seen.
+        self._namesake_timer = self.create_timer(2.0, self._warn_about_namesakes)
+
+    def _warn_about_namesakes(self) -> None:
+        self._namesake_timer.cancel()
+        me = (self.get_name(), self.get_namespace())
+        if sum(1 for entry in self.get_node_names_and_namespaces() if tuple(entry) == me) > 1:
+            self.get_logger().warning(
+                f"another node named {self.get_fully_qualified_name()} is running: both answer to the same "
+                "parameters and services; give this one another name (--ros-args -r __node:=NAME)")
 
     # ------------------------------------------------------------------ executor side
     def _on_cloud(self, msg: Any) -> None:

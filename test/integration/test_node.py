@@ -362,3 +362,37 @@ def test_node_does_not_import_torch_and_starts_fast(tiny_model_path):
             break
     print(f"node start-up (imports + init + model): {min(startups):.2f} s")
     assert min(startups) < 2.0, startups
+
+
+def test_ready_line_shows_remapped_topics_and_a_namesake_is_reported(tiny_model_path):
+    """`-r /points:=/lidar/top` shows in the ready line; a second node of the same name warns about the first."""
+    env = _env(DOMAIN + 4)
+    cmd = [_bin("mos_node"), "--ros-args", "-p", f"model:={tiny_model_path}", "-r", "/points:=/lidar/top",
+           "-r", "/mos/labels:=/seg/labels"]
+    nodes = [subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for _ in range(2)]
+    lines: list[list[str]] = [[], []]
+    readers = [threading.Thread(target=lambda k=k: lines[k].extend(nodes[k].stdout), daemon=True) for k in range(2)]
+    for reader in readers:
+        reader.start()
+    deadline = time.monotonic() + 40
+    try:
+        while time.monotonic() < deadline and not any("another node named" in line for out in lines for line in out):
+            assert all(node.poll() is None for node in nodes), lines
+            time.sleep(0.1)
+    finally:
+        for node in nodes:
+            node.send_signal(signal.SIGINT)
+        for node in nodes:
+            try:
+                node.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                node.kill()
+        for reader in readers:
+            reader.join(5)
+    outputs = ["".join(out) for out in lines]
+    ready = [line for out in outputs for line in out.splitlines() if "ready in" in line]
+    assert len(ready) == 2, outputs
+    assert all("/lidar/top (best effort) -> " in line and "/seg/labels" in line for line in ready), ready
+    assert any("another node named /mos_node is running" in out for out in outputs), outputs
+    assert all("Traceback" not in out for out in outputs)
