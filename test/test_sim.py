@@ -225,6 +225,18 @@ def test_porous_foliage_lengthens_only_vegetation_ranges_by_the_set_depth() -> N
         SensorEffects(vegetation_penetration=1.5)
 
 
+def test_mixed_pixels_only_at_depth_edges_and_between_the_two_surfaces() -> None:
+    from ros2_mos.sim.lidar import _mix_edges
+
+    dist = np.array([10, 10, 20, 20, 20, 10, 5, 5, 5, np.inf, 5, 5], float)  # two beams of 6 columns
+    out = _mix_edges(dist.copy(), dist, 6, 1.0, np.random.default_rng(0))
+    mixed = out != dist
+    # beam 0: edges between columns 1|2 and 4|5 (10 m vs 20 m); beam 1: no return is no edge
+    np.testing.assert_array_equal(np.flatnonzero(mixed), [1, 2, 4, 5])
+    assert ((out[mixed] >= 10) & (out[mixed] <= 20)).all()
+    assert not (_mix_edges(dist.copy(), dist, 6, 0.0, np.random.default_rng(0)) != dist).any()
+
+
 def test_randomized_presets_vary_by_sequence_and_repeat_by_seed() -> None:
     from ros2_mos.sim.presets import randomized_for_sequence
 

@@ -103,6 +103,8 @@ class Lidar:
             foliage = np.flatnonzero(sem == VEGETATION)
             into = foliage[rng.random(len(foliage)) < eff.vegetation_penetration]
             r[into] += rng.exponential(eff.vegetation_depth, len(into))
+        if eff.edge_mixing > 0:
+            r = _mix_edges(r, dist, self.sensor.width, eff.edge_mixing, rng)
         p_drop = (
             eff.dropout
             + eff.grazing_dropout * np.clip(1.0 - cos_inc / 0.1, 0.0, 1.0)
@@ -118,3 +120,20 @@ class Lidar:
         remission = np.clip(remission, 0.0, 1.0)
         points = (self.dirs_sensor[keep] * r[keep, None]).astype(np.float32)
         return LidarScan(points, remission[keep].astype(np.float32), sem[keep], inst[keep])
+
+
+def _mix_edges(r: np.ndarray, dist: np.ndarray, width: int, probability: float, rng: np.random.Generator) -> np.ndarray:
+    """Ranges of rays at a depth edge (the next ray of the beam lands > max(0.5 m, 5 %) away), with the given
+    probability replaced by a range uniformly between the two surfaces (a mixed pixel)."""
+    d = np.where(np.isfinite(dist), dist, np.inf).reshape(-1, width)
+    nxt = np.roll(d, -1, axis=1)
+    near, far = np.minimum(d, nxt), np.maximum(d, nxt)
+    edge = np.isfinite(far) & (far - near > np.maximum(0.5, 0.05 * near))
+    edge |= np.roll(edge, 1, axis=1)  # both rays of the pair straddle the edge
+    lo = np.minimum(near, np.roll(near, 1, axis=1))
+    hi = np.where(np.isfinite(far), far, 0.0)
+    hi = np.maximum(hi, np.roll(hi, 1, axis=1))
+    idx = np.flatnonzero(edge.ravel() & (rng.random(edge.size) < probability))
+    out = r.copy()
+    out[idx] = lo.ravel()[idx] + rng.random(len(idx)) * (hi.ravel()[idx] - lo.ravel()[idx])
+    return out

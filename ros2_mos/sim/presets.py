@@ -220,13 +220,17 @@ class SensorEffects:
     # vegetation's ranges flicker from scan to scan like that, which residuals see; 0 = solid.
     vegetation_penetration: float = 0.0
     vegetation_depth: float = 0.0
+    # Mixed pixels: where neighbouring rays of a beam land on surfaces at different depths (an object's
+    # edge), the footprint straddles both and a real sensor may return a range in between; with this
+    # probability per edge ray, anew in every scan. 0 = clean edges.
+    edge_mixing: float = 0.0
 
     def __post_init__(self) -> None:
         if self.range_sigma < 0 or self.remission_sigma < 0:
             raise ConfigError("range_sigma and remission_sigma must be >= 0")
         if not 0.0 <= self.vegetation_depth <= 10.0:
             raise ConfigError(f"vegetation_depth must be in [0, 10] m, got {self.vegetation_depth}")
-        for name in ("dropout", "grazing_dropout", "far_dropout", "vegetation_penetration"):
+        for name in ("dropout", "grazing_dropout", "far_dropout", "vegetation_penetration", "edge_mixing"):
             _check_prob(name, getattr(self, name))
         if not 0 <= self.ego_clearance < self.max_range:
             raise ConfigError(f"need 0 <= ego_clearance < max_range, got {self.ego_clearance}, {self.max_range}")
@@ -302,7 +306,8 @@ def randomized(preset: SimPreset, rng: np.random.Generator) -> SimPreset:
     skew, so a network should not learn one simulated sensor's exact statistics.  The
     ranges bracket the presets' own values; about half of the sequences are skewed
     (each column cast from the pose at its firing time), as unprocessed driver output is,
-    and foliage is porous (its ranges flicker from scan to scan, as real trees' do).
+    foliage is porous (its ranges flicker from scan to scan, as real trees' do), and object edges
+    return mixed ranges between foreground and background.
     """
     u = rng.uniform
     effects = replace(
@@ -316,6 +321,7 @@ def randomized(preset: SimPreset, rng: np.random.Generator) -> SimPreset:
         intra_sweep_motion=bool(rng.random() < 0.5),
         vegetation_penetration=float(u(0.2, 0.8)),
         vegetation_depth=float(u(0.2, 1.5)),
+        edge_mixing=float(u(0.1, 0.6)),
     )
     ego = replace(preset.ego, body_vibration_deg=float(u(0.02, 0.3)))
     return replace(preset, effects=effects, ego=ego)
