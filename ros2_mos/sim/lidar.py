@@ -128,7 +128,8 @@ def _mix_edges(r: np.ndarray, dist: np.ndarray, width: int, probability: float, 
     d = np.where(np.isfinite(dist), dist, np.inf).reshape(-1, width)
     nxt = np.roll(d, -1, axis=1)
     near, far = np.minimum(d, nxt), np.maximum(d, nxt)
-    edge = np.isfinite(far) & (far - near > np.maximum(0.5, 0.05 * near))
+    with np.errstate(invalid="ignore"):  # inf - inf where neither ray returns: no edge
+        edge = np.isfinite(far) & (far - near > np.maximum(0.5, 0.05 * near))
     edge |= np.roll(edge, 1, axis=1)  # both rays of the pair straddle the edge
     lo = np.minimum(near, np.roll(near, 1, axis=1))
     hi = np.where(np.isfinite(far), far, 0.0)
