@@ -8,6 +8,9 @@ bag with rosbags message types and writes the node's topics to a new bag.
 
 from __future__ import annotations
 
+import os
+import shutil
+import signal
 import time
 from pathlib import Path
 from typing import Any, Optional
@@ -36,10 +39,7 @@ def process(
     copy_input: bool = typer.Option(True, help="Also write the input clouds, so the bag is self-contained"),
 ) -> None:
     """Run the node's pipeline offline over a bag; write static/moving/labels/images/odometry (and /tf)."""
-    from tqdm import tqdm
-
-    from ros2_mos.datasets.bags import BagWriter, iter_pointclouds, pointcloud_topic
-    from ros2_mos.errors import ScanError
+    from ros2_mos.datasets.bags import BagWriter, pointcloud_topic
     from ros2_mos.pipeline import MosPipeline
     from ros2_mos.ros.messages import MessageTypes
     from ros2_mos.ros.params import mos_config, node_settings
@@ -50,31 +50,60 @@ def process(
     processor = ScanProcessor(MosPipeline(mos_config(values)), settings, MessageTypes.rosbags())
     in_topic = pointcloud_topic(bag_in, topic)
     topics = {**settings.topics, "tf": "/tf"}
-    done = skipped = moving = points = 0
     totals: list[float] = []
-    with BagWriter(bag_out, storage=storage) as bag:
-        for stamp, msg in tqdm(iter_pointclouds(bag_in, in_topic), desc="process", unit="scan"):
-            if copy_input:
-                bag.write(in_topic, stamp, msg)
-            try:
-                out = processor.process(msg)
-            except ScanError as exc:
-                skipped += 1
-                tqdm.write(f"warning: scan at {stamp * 1e-9:.3f} s skipped: {exc}")
-                continue
-            for note in out.notes:
-                tqdm.write(f"warning: {note}")
-            for key, message in out.messages.items():
-                bag.write(topics[key], stamp, message)
-            done += 1
-            moving += out.n_moving
-            points += len(out.valid_index)
-            totals.append(out.timings["total"])
-    if done == 0:
-        fail(f"no scan of {in_topic} could be processed ({skipped} skipped)")
+    if bag_out.exists():
+        fail(f"bag output {bag_out} already exists; remove it or choose another path")
+    # Written beside the target and renamed at the end: an interrupted, failed or empty run leaves no
+    # half-written bag behind (and a rerun is not refused because of one).
+    partial = bag_out.with_name(f".{bag_out.name}.partial-{os.getpid()}")
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        with BagWriter(partial, storage=storage) as bag:
+            done, skipped, moving, points = _process_into(bag, processor, bag_in, in_topic, topics, copy_input, totals)
+        if done == 0:
+            fail(f"no scan of {in_topic} could be processed ({skipped} skipped); no bag written")
+        partial.rename(bag_out)
+    except KeyboardInterrupt:
+        fail(f"interrupted: the partial output was removed, nothing was written to {bag_out}", 130)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        shutil.rmtree(partial, ignore_errors=True)
     totals.sort()
     typer.echo(f"{done} scans processed, {skipped} skipped; median {totals[len(totals) // 2]:.1f} ms/scan; "
                f"{100.0 * moving / max(points, 1):.1f}% of points moving; wrote {bag_out}")
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _process_into(bag: Any, processor: Any, bag_in: Path, in_topic: str, topics: dict[str, str], copy_input: bool,
+                  totals: list[float]) -> tuple[int, int, int, int]:
+    """Label every cloud of ``in_topic`` into ``bag``; (processed, skipped, moving points, points)."""
+    from tqdm import tqdm
+
+    from ros2_mos.datasets.bags import iter_pointclouds
+    from ros2_mos.errors import ScanError
+
+    done = skipped = moving = points = 0
+    for stamp, msg in tqdm(iter_pointclouds(bag_in, in_topic), desc="process", unit="scan"):
+        if copy_input:
+            bag.write(in_topic, stamp, msg)
+        try:
+            out = processor.process(msg)
+        except ScanError as exc:
+            skipped += 1
+            tqdm.write(f"warning: scan at {stamp * 1e-9:.3f} s skipped: {exc}")
+            continue
+        for note in out.notes:
+            tqdm.write(f"warning: {note}")
+        for key, message in out.messages.items():
+            bag.write(topics[key], stamp, message)
+        done += 1
+        moving += out.n_moving
+        points += len(out.valid_index)
+        totals.append(out.timings["total"])
+    return done, skipped, moving, points
 
 
 @app.command()

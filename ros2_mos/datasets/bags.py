@@ -9,6 +9,7 @@ are rosbags dataclasses, which :mod:`ros2_mos.pointcloud2` handles like rclpy's.
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -153,14 +154,21 @@ def bag_topics(bag_path: str | Path) -> dict[str, str]:
         return {c.topic: c.msgtype for c in reader.connections}
 
 
-def _open_reader(reader_cls: Any, bag_path: str | Path) -> Any:
+@contextmanager
+def _open_reader(reader_cls: Any, bag_path: str | Path) -> Iterator[Any]:
+    """An opened rosbags reader; a missing, truncated or unreadable bag is a DatasetError."""
     path = Path(bag_path)
     if not path.exists():
         raise DatasetError(f"bag {path} does not exist")
     try:
-        return reader_cls(path)
+        reader = reader_cls(path)
+        reader.open()
     except Exception as exc:  # rosbags raises its own ReaderError and others for bad bags
         raise DatasetError(f"cannot open bag {path}: {exc}") from exc
+    try:
+        yield reader
+    finally:
+        reader.close()
 
 
 def iter_messages(bag_path: str | Path, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
@@ -171,8 +179,19 @@ def iter_messages(bag_path: str | Path, topics: Iterable[str]) -> Iterator[tuple
     ts = typestore()
     with _open_reader(Reader, bag_path) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
-        for conn, timestamp, raw in reader.messages(connections=connections):
-            yield conn.topic, int(timestamp), ts.deserialize_cdr(raw, conn.msgtype)
+        messages = reader.messages(connections=connections)
+        count = 0
+        while True:
+            try:
+                conn, timestamp, raw = next(messages)
+                msg = ts.deserialize_cdr(raw, conn.msgtype)
+            except StopIteration:
+                return
+            except Exception as exc:  # truncated, zeroed or CRC-failing storage; undecodable messages
+                raise DatasetError(f"bag {bag_path} is damaged after {count} messages: "
+                                   f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc
+            count += 1
+            yield conn.topic, int(timestamp), msg
 
 
 def pointcloud_topic(bag_path: str | Path, topic: str | None = None) -> str:
