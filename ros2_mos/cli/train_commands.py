@@ -128,3 +128,19 @@ def ablation(
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(table + "\n")
+
+
+@app.command("import-lidar-mos")
+def import_lidar_mos(
+    model_dir: Path = typer.Argument(..., help="A released LiDAR-MOS model folder (arch_cfg.yaml + SalsaNext_valid_best, "
+                                               "or + backbone, segmentation_decoder, segmentation_head)"),
+    out: Path = typer.Option(..., "--out", help="ONNX file to write (run it with -p model:=FILE / --model FILE)"),
+) -> None:
+    """Turn the LiDAR-MOS authors' SalsaNext or RangeNet++ (N = 1 or 8) into a model the node runs unchanged."""
+    from ros2_mos.training.lidar_mos import import_lidar_mos as run_import
+
+    if out.exists() and not out.is_file():
+        fail(f"--out {out} exists and is not a file")
+    report = run_import(model_dir, out)
+    typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.1f} MB, ONNX vs PyTorch max abs diff "
+               f"{report.max_abs_diff:.1e}); trained on KITTI's HDL-64E: other sensors need their own model")
