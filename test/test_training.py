@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -269,3 +270,18 @@ def test_baselines_find_the_moving_box(data_root, tmp_path):
     rg = evaluate_point_iou([cache], lambda c, i: ResidualRegionGrowing(0.1, 0.05, 0.1).predict(c, i).astype(np.float32))
     assert thr.tp > 0 and rg.tp > 0
     assert rg.iou > 0.2
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[1] / "configs").glob("*.yaml")),
+                         ids=lambda p: p.name)
+def test_every_shipped_training_config_loads(path):
+    config = TrainConfig.from_yaml(path)
+    assert config.setup.channels > 0 and config.train_sequences
+
+
+def test_training_config_refuses_nonsense_values(data_root, tmp_path):
+    for bad in ({"lovasz_weight": -1.0}, {"drop_max": 2.0}, {"lr": float("nan")}, {"weight_decay": float("inf")},
+                {"flip_y": 1.5}, {"max_minutes": 0.0}, {"residual_min_range": 60.0}, {"pose_noise": [0.1]},
+                {"past_offsets": [2, 1], "n_past": 2}, {"image_channels": ["range", "speed"]}):
+        with pytest.raises(ConfigError):
+            _config(data_root, tmp_path, **bad)
