@@ -115,3 +115,20 @@ def test_recommended_threshold_is_checked_and_written(tmp_path):
 
 def test_suite_uses_the_test_sensor(tiny_model_path):
     assert MosPipeline(MosConfig(model=str(tiny_model_path))).sensor == TEST_SENSOR
+
+
+def test_model_metadata_with_zero_or_non_finite_stds_is_refused():
+    import json
+
+    from ros2_mos.config import SensorConfig
+    from ros2_mos.features import InputSetup
+    from ros2_mos.metadata import ModelMetadata
+
+    good = ModelMetadata("fastmos", InputSetup("residual", 1), SensorConfig()).to_json()
+    for key, value in (("stds", [1.0, 1.0, 0.0, 1.0, 1.0]), ("means", [0.0, float("nan"), 0, 0, 0]),
+                       ("extra", {"recommended_threshold": 7})):
+        data = json.loads(good)
+        data[key] = value
+        with pytest.raises(ModelError):
+            ModelMetadata.from_json(json.dumps(data))
+    assert ModelMetadata.from_json(good).stds[2] > 0
