@@ -29,6 +29,17 @@ def test_range_image_and_residuals_match_numpy():
     assert close.mean() > 0.995
 
 
+def test_signed_residuals_at_offsets_match_numpy():
+    seq = street_sequence(4)
+    past = [(p, pose) for p, _, _, pose in seq[:3]][::-1]  # newest first
+    pts, _, _, pose = seq[3]
+    current = project_range(pts, TEST_SENSOR)
+    ref = residual_images(current, pose, past, 2, TEST_SENSOR, ResidualConfig(), offsets=(1, 3), signed=True)
+    got = torch_ops.TorchGeometry(TEST_SENSOR, "cpu").residuals(current, pose, past, 2, ResidualConfig(), (1, 3), True)
+    assert (ref < 0).any() and (ref > 0).any()
+    assert np.isclose(got, ref, atol=1e-3).mean() > 0.995
+
+
 def test_knn_matches_numpy():
     pts, rem, _, _ = street_sequence(1)[0]
     image = project(pts, rem, TEST_SENSOR)
