@@ -57,6 +57,20 @@ def connected_regions(valid: np.ndarray, rng: np.ndarray, rel: float, min_jump: 
     return np.where(valid, parent.reshape(h, w), -1)
 
 
+def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:
+    """Pixels of every region (label >= 0) of which at least ``seed_fraction`` (and > 0 pixels) are seeds."""
+    seeds = seeds & (regions >= 0)
+    if not seeds.any():
+        return np.zeros(seeds.shape, bool)
+    lab = regions[regions >= 0]
+    size = np.bincount(lab, minlength=regions.size)
+    hits = np.bincount(regions[seeds], minlength=regions.size)
+    moving_region = (hits >= seed_fraction * np.maximum(size, 1)) & (hits > 0)
+    out = np.zeros(seeds.shape, bool)
+    out[regions >= 0] = moving_region[lab]
+    return out
+
+
 def fill_segments(prob_image: np.ndarray, range_image: np.ndarray, z_image: np.ndarray, threshold: float,
                   fill_fraction: float, rel_jump: float = 0.05, margin_columns: int = 32) -> np.ndarray:
     """The probability image with every non-ground segment that is at least ``fill_fraction`` moving raised
@@ -73,14 +87,7 @@ def fill_segments(prob_image: np.ndarray, range_image: np.ndarray, z_image: np.n
     near[(cols[:, None] + offsets[None, :]).ravel() % range_image.shape[1]] = True
     raw = np.stack([range_image, range_image, range_image, z_image])  # ground_mask reads range (0) and z (3)
     valid = (range_image > 0) & ~ground_mask(raw) & near[None, :]
-    regions = connected_regions(valid, range_image, rel_jump)
-    inside = regions >= 0
-    lab = regions[inside]
-    size = np.bincount(lab, minlength=regions.size)
-    hits = np.bincount(regions[moving & inside], minlength=regions.size)
-    filled = (hits > 0) & (hits >= fill_fraction * np.maximum(size, 1))
+    raise_to = grow_regions(moving, connected_regions(valid, range_image, rel_jump), fill_fraction)
     out = prob_image.copy()
-    raise_to = np.zeros(range_image.shape, bool)
-    raise_to[inside] = filled[lab]
     out[raise_to] = np.maximum(out[raise_to], threshold)
     return out

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ros2_mos.segments import connected_regions, ground_mask
+from ros2_mos.segments import connected_regions, ground_mask, grow_regions
 
 
 def residual_threshold(newest_residual: np.ndarray, tau: float) -> np.ndarray:
@@ -35,20 +35,6 @@ def residual_threshold(newest_residual: np.ndarray, tau: float) -> np.ndarray:
 def free_space_seeds(signed_residuals: np.ndarray, tau_seed: float) -> np.ndarray:
     """Pixels where the two newest signed residuals both exceed τ_seed (the space was free twice)."""
     return (signed_residuals[0] > tau_seed) & (signed_residuals[1] > tau_seed)
-
-
-def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:
-    """Pixels of every region (label >= 0) of which at least ``seed_fraction`` (and > 0 pixels) are seeds."""
-    seeds = seeds & (regions >= 0)
-    if not seeds.any():
-        return np.zeros(seeds.shape, bool)
-    lab = regions[regions >= 0]
-    size = np.bincount(lab, minlength=regions.size)
-    hits = np.bincount(regions[seeds], minlength=regions.size)
-    moving_region = (hits >= seed_fraction * np.maximum(size, 1)) & (hits > 0)
-    out = np.zeros(seeds.shape, bool)
-    out[regions >= 0] = moving_region[lab]
-    return out
 
 
 @dataclass(frozen=True)
