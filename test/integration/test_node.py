@@ -313,6 +313,10 @@ def test_node_process_replay_and_listener(tmp_path, tiny_model_path, sequence):
         executor.add_node(listener)
         spin = threading.Thread(target=executor.spin, daemon=True)
         spin.start()
+        # The outputs are volatile: wait until discovery has matched the node's publisher, or a slow start misses all.
+        deadline = time.monotonic() + 15
+        while listener.count_publishers("/mos/static_points") < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
         time.sleep(0.5)
         replay = subprocess.run([_bin("ros2-mos"), "replay", str(bag), "--sync", "/mos/static_points"],
                                 env=_env(domain), capture_output=True, text=True, timeout=60)
