@@ -84,12 +84,9 @@ class _Stub:
 
 
 class _SafeUnpickler(pickle.Unpickler):
-    stubbed: list[str] = []
-
     def find_class(self, module: str, name: str) -> Any:
         if (module, name) in _ALLOWED_GLOBALS:
             return super().find_class(module, name)
-        _SafeUnpickler.stubbed.append(f"{module}.{name}")
         return type(name, (_Stub,), {"_stub_name": f"{module}.{name}"})
 
 
