@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ros2_mos.config import SensorConfig
 from ros2_mos.errors import ModelError
@@ -72,9 +74,6 @@ def check_threshold(value: object, what: str = "threshold") -> float:
 
 def write_recommended_threshold(path: str | Path, threshold: float) -> None:
     """Store ``recommended_threshold`` in an exported model's metadata (atomically replaces the file)."""
-    import os
-    import tempfile
-
     import onnx
 
     threshold = check_threshold(threshold, "recommended_threshold")
@@ -89,12 +88,24 @@ def write_recommended_threshold(path: str | Path, threshold: float) -> None:
     meta = ModelMetadata.from_json(entry.value)
     meta.extra["recommended_threshold"] = threshold
     entry.value = meta.to_json()
+    save_model_atomically(proto, path)
+
+
+def save_model_atomically(proto: Any, path: Path, check: Callable[[Path], None] | None = None) -> None:
+    """Write an ONNX ``proto`` beside ``path``, run ``check`` on that file, then rename it into place.
+
+    A node never loads a half-written model, and a model that fails ``check`` never replaces the old one.
+    """
+    import onnx
+
     fd, tmp_name = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     try:
         onnx.save(proto, tmp)
-        tmp.chmod(0o644)
+        tmp.chmod(0o644)  # mkstemp makes 0600 files; a model is meant to be read by others
+        if check is not None:
+            check(tmp)
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)

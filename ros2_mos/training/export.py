@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import io
 import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +27,7 @@ import torch
 from torch import nn
 
 from ros2_mos.errors import ModelError
-from ros2_mos.metadata import METADATA_KEY, ModelMetadata
+from ros2_mos.metadata import METADATA_KEY, ModelMetadata, save_model_atomically
 
 # The tensor names are the contract with the runtime: one definition, in the runtime.
 from ros2_mos.inference import INPUT_NAME, OUTPUT_NAME  # noqa: E402
@@ -128,23 +127,15 @@ def export_onnx(
     onnx.checker.check_model(proto)
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    # Write atomically so that a node never loads a half-written model.
-    fd, tmp_name = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
-        onnx.save(proto, tmp)
-        tmp.chmod(0o644)  # mkstemp makes 0600 files; a model is meant to be read by others
-        max_diff = 0.0
-        if check:
-            max_diff = _check_with_onnxruntime(tmp, example.numpy(), reference.numpy())
-            if not max_diff <= atol:
-                raise ModelError(
-                    f"ONNX Runtime disagrees with PyTorch after export: max abs diff {max_diff:.3g} > {atol:.3g}"
-                )
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    max_diff = 0.0
+
+    def agrees_with_pytorch(tmp: Path) -> None:
+        nonlocal max_diff
+        max_diff = _check_with_onnxruntime(tmp, example.numpy(), reference.numpy())
+        if not max_diff <= atol:
+            raise ModelError(f"ONNX Runtime disagrees with PyTorch after export: max abs diff {max_diff:.3g} > {atol:.3g}")
+
+    save_model_atomically(proto, path, agrees_with_pytorch if check else None)
     return ExportReport(path=path, max_abs_diff=max_diff, size_bytes=path.stat().st_size)
 
 
