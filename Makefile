@@ -19,6 +19,7 @@ demo: $(STAMP)
 	$(BIN)/ros2-mos demo
 
 test: $(STAMP)
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)

@@ -319,7 +319,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                   traceback_in_log="Traceback" in log,
                   backwards_resets_logged=sum("time went backwards" in line for line in log_lines),
                   pose_jump_resets_logged=sum("pose jumped" in line for line in log_lines),
-                  gap_resets_logged=sum("reset_after_gap" in line for line in log_lines), load_average_before=load_before,
+                  gap_resets_logged=sum("reset_after_gap" in line for line in log_lines),
+                  load_average_before=load_before,
                   load_average_after=load_average(), node_log_tail=log_lines[-8:])
     return result
 
@@ -366,7 +367,8 @@ def report(r: dict[str, Any]) -> str:
             + f"; load {p['load_average'][0]:.2f}")
     if "capacity_hz" in r:
         lines.append(f"  capacity {r['capacity_hz']:.1f} Hz = max(1000 / mean processing ms = "
-                     f"{r['capacity_from_time_hz']:.1f} Hz, throughput in the 10 Hz phase {r['throughput_at_10hz']:.1f} Hz)")
+                     f"{r['capacity_from_time_hz']:.1f} Hz, "
+                     f"throughput in the 10 Hz phase {r['throughput_at_10hz']:.1f} Hz)")
     rss = r["rss"]
     if rss:
         change = rss["second_half_slope_mb_per_min"] * rss["duration_s"] / 120.0  # over the second half
@@ -392,7 +394,8 @@ def report(r: dict[str, Any]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seconds", type=float, default=150.0, help="total publishing time (half 10 Hz, half overload)")
+    parser.add_argument("--seconds", type=float, default=150.0,
+                        help="total publishing time (half 10 Hz, half overload)")
     parser.add_argument("--overload", type=float, default=2.0, help="second half rate = this x the node's capacity")
     parser.add_argument("--model", help="ONNX model (default: export the residual-threshold test model)")
     parser.add_argument("--bag", help="rosbag2 with one PointCloud2 topic (default: a generated street sequence)")

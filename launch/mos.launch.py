@@ -27,7 +27,9 @@ def generate_launch_description() -> LaunchDescription:
     log_level = LaunchConfiguration("log_level")
 
     def node(with_model: bool) -> Node:
-        overrides = {"qos.reliability": PythonExpression(["'reliable' if '", reliable, "' == 'true' else 'best_effort'"])}
+        overrides = {
+            "qos.reliability": PythonExpression(["'reliable' if '", reliable, "' == 'true' else 'best_effort'"])
+        }
         if with_model:
             overrides["model"] = model
         has_model = PythonExpression(["'", model, "' != ''"])

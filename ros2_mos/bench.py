@@ -113,7 +113,9 @@ def format_table(results: list[BenchResult]) -> str:
     for s in stages:
         cells = [f"{r.stage_ms[s][0]:.1f} / {r.stage_ms[s][1]:.1f}" if s in r.stage_ms else "–" for r in results]
         rows.append(f"| {s} | " + " | ".join(cells) + " |")
-    rows.append("| **end to end** | " + " | ".join(f"**{r.total_ms[0]:.1f} / {r.total_ms[1]:.1f}**" for r in results) + " |")
+    rows.append(
+        "| **end to end** | " + " | ".join(f"**{r.total_ms[0]:.1f} / {r.total_ms[1]:.1f}**" for r in results) + " |"
+    )
     rows.append("| rate (Hz, at the median) | " + " | ".join(f"{r.hz:.1f}" for r in results) + " |")
     rows.append("| peak RSS (MB) | " + " | ".join(f"{r.peak_rss_mb:.0f}" for r in results) + " |")
     rows.append("| scans timed | " + " | ".join(str(r.scans) for r in results) + " |")

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_label, write_label, sequence_dirs
+from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_label, sequence_dirs, write_label
 from ros2_mos.errors import DatasetError
 from ros2_mos.labels import SUBMISSION_MOVING_ID, semantic_ids, to_moving_classes, to_submission
 from ros2_mos.metrics import MovingIoU

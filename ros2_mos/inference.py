@@ -94,7 +94,8 @@ class MosModel:
         sensor = self.metadata.sensor
         hw = tuple(shape[2:]) if len(shape) == 4 else ()
         if len(hw) == 2 and all(isinstance(d, int) for d in hw) and hw != (sensor.height, sensor.width):
-            raise ModelError(f"{self.path}: input is {hw[0]} x {hw[1]} but the metadata sensor is {sensor.height} x {sensor.width}")
+            raise ModelError(f"{self.path}: input is {hw[0]} x {hw[1]} "
+                             f"but the metadata sensor is {sensor.height} x {sensor.width}")
 
     @property
     def channels(self) -> int:

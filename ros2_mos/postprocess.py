@@ -93,7 +93,9 @@ def knn_backproject(
     return out
 
 
-def _knn_vote(prob_image: np.ndarray, range_image: np.ndarray, pixels: PixelIndex, config: PostprocessConfig) -> np.ndarray:
+def _knn_vote(
+    prob_image: np.ndarray, range_image: np.ndarray, pixels: PixelIndex, config: PostprocessConfig
+) -> np.ndarray:
     h, w = range_image.shape
     half = config.window // 2
     # Pad rows with "no return" and wrap columns (the image is 360 deg in azimuth), so every

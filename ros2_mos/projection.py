@@ -19,6 +19,7 @@ import numpy as np
 from ros2_mos.config import SensorConfig
 from ros2_mos.errors import ScanError
 
+
 @dataclass
 class PixelIndex:
     """Where each point lands: its pixel (clamped into the image) and whether it lies inside."""

@@ -92,7 +92,9 @@ def knn_backproject(prob_image: torch.Tensor, range_img: torch.Tensor, pixels: P
     u = torch.as_tensor(pixels.u, device=device).long()
     point_range = torch.as_tensor(pixels.range, device=device)
     flat = ((v + half) * pw + u + half)[:, None] + window_offsets
-    dist = torch.abs(rng.reshape(-1)[flat] - point_range[:, None]) * _inverse_gaussian(config.window, config.sigma, device)
+    dist = torch.abs(rng.reshape(-1)[flat] - point_range[:, None]) * _inverse_gaussian(
+        config.window, config.sigma, device
+    )
     dist[:, (config.window * config.window) // 2] = -1.0
     kth = torch.kthvalue(dist, config.k, dim=1, keepdim=True).values if config.k < dist.shape[1] else None
     keep = dist <= config.cutoff

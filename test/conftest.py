@@ -17,7 +17,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from ros2_mos.config import SensorConfig  # noqa: E402
 
-TEST_SENSOR = SensorConfig("test32", height=32, width=512, fov_up_deg=10.0, fov_down_deg=-20.0, min_range=0.0, max_range=100.0)
+TEST_SENSOR = SensorConfig(
+    "test32", height=32, width=512, fov_up_deg=10.0, fov_down_deg=-20.0, min_range=0.0, max_range=100.0
+)
 
 
 def make_threshold_model(path: Path, sensor: SensorConfig = TEST_SENSOR, n_past: int = 2, threshold: float = 0.08,

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
+from apps_scenes import write_street_sequence
 from typer.testing import CliRunner
 
-from apps_scenes import write_street_sequence
 from ros2_mos.cli import app
 from ros2_mos.datasets.semantic_kitti import read_poses
 
@@ -32,7 +32,8 @@ def test_odometry_rejects_a_bad_mask(street):
 
 
 def test_map_writes_both_maps_the_png_and_reports_ghosts(street, tiny_model_path, tmp_path):
-    result = CliRunner().invoke(app, ["map", str(street), "--out", str(tmp_path / "m.pcd"), "--png", str(tmp_path / "bev.png"),
+    result = CliRunner().invoke(app, ["map", str(street), "--out", str(tmp_path / "m.pcd"),
+                                      "--png", str(tmp_path / "bev.png"),
                                       "--model", str(tiny_model_path), "--voxel-size", "0.2", "--poses", "gt"])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "m_raw.pcd").stat().st_size > 1000 and (tmp_path / "m_cleaned.pcd").stat().st_size > 1000

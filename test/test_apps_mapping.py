@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from apps_scenes import write_street_sequence
+
 from ros2_mos.apps.mapping import (
     TAG_MOVING,
     TAG_STATIC,
@@ -24,7 +24,6 @@ from ros2_mos.config import MosConfig
 from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
 from ros2_mos.errors import ConfigError, ScanError
 from ros2_mos.labels import MOVING, to_moving_classes
-
 
 # ------------------------------------------------------------------ readers written from the format specs
 
@@ -82,14 +81,16 @@ def read_pcd(path):
 
 def test_voxel_map_keeps_the_first_point_of_each_voxel_with_its_tag():
     vm = VoxelMap(VoxelMapConfig(voxel_size=1.0))
-    added = vm.insert(np.array([[0.2, 0.2, 0.2], [0.8, 0.9, 0.1], [1.5, 0, 0], [-0.5, 0, 0]]), tags=[1, 2, 3, 4], stamp=1.0)
+    added = vm.insert(np.array([[0.2, 0.2, 0.2], [0.8, 0.9, 0.1], [1.5, 0, 0], [-0.5, 0, 0]]),
+                      tags=[1, 2, 3, 4], stamp=1.0)
     assert added == 3 and len(vm) == 3
     assert vm.insert(np.array([[0.5, 0.5, 0.5], [5.0, 5.0, 5.0], [np.nan, 0, 0]]), tags=[9, 5, 6], stamp=2.0) == 1
     by_tag = {int(t): p for t, p in zip(vm.tags, vm.points)}
     assert set(by_tag) == {1, 3, 4, 5}
     np.testing.assert_allclose(by_tag[1], [0.2, 0.2, 0.2], atol=1e-6)
     assert sorted(vm.stamps.tolist()) == [1.0, 1.0, 1.0, 2.0]
-    np.testing.assert_array_equal(vm.contains(np.array([[0.9, 0.1, 0.9], [2.5, 0, 0], [-0.1, 0.5, 0.5]])), [True, False, True])
+    np.testing.assert_array_equal(vm.contains(np.array([[0.9, 0.1, 0.9], [2.5, 0, 0], [-0.1, 0.5, 0.5]])),
+                                  [True, False, True])
     with pytest.raises(ValueError):
         vm.points[0, 0] = 1.0  # read-only views
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from apps_scenes import write_street_sequence
+
 from ros2_mos.apps.odometry import MASKS, evaluate_run, ground_truth_camera_poses, parse_masks, run_odometry
 from ros2_mos.config import MosConfig
 from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, write_scan

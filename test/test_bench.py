@@ -1,8 +1,8 @@
 """The benchmark runs on a tiny input and reports every stage (no timing assertions)."""
 
 import numpy as np
-
 from scenes import street_sequence
+
 from ros2_mos.bench import STAGES, bench_pipeline, format_table
 from ros2_mos.datasets.bags import write_scans_bag
 
@@ -23,6 +23,7 @@ def test_bench_pipeline_reports_every_stage(tmp_path, tiny_model_path):
 
 def test_reference_pipeline_labels_every_point():
     from conftest import TEST_SENSOR
+
     from ros2_mos.training.reference import ReferencePipeline
 
     pipe = ReferencePipeline(TEST_SENSOR, n_past=2, threads=1)

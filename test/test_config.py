@@ -45,7 +45,8 @@ def test_yaml_config_with_preset_and_nested_sections(tmp_path):
     "text, message",
     [("threshold: 1.5\n", "threshold"), ("knn: 3\n", "unknown keys"), ("postprocess: {mode: foo}\n", "mode"),
      ("sensor: {beams: 64}\n", "sensor: unknown keys"), ("- a\n", "mapping"),
-     ("odometry: {point_stride: 0}\n", "point_stride"), ("odometry: {max_points_per_voxel: 0}\n", "max_points_per_voxel")],
+     ("odometry: {point_stride: 0}\n", "point_stride"),
+     ("odometry: {max_points_per_voxel: 0}\n", "max_points_per_voxel")],
 )
 def test_bad_yaml_values_are_rejected_with_the_key_named(tmp_path, text, message):
     path = tmp_path / "bad.yaml"

@@ -9,7 +9,9 @@ NS = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 
 def test_profile_is_shipped_and_sets_a_32_mb_shared_memory_segment_plus_udp():
     root = ET.parse(profile_path()).getroot()
-    transports = {d.findtext("p:transport_id", namespaces=NS): d for d in root.iterfind(".//p:transport_descriptor", NS)}
+    transports = {
+        d.findtext("p:transport_id", namespaces=NS): d for d in root.iterfind(".//p:transport_descriptor", NS)
+    }
     shm = [d for d in transports.values() if d.findtext("p:type", namespaces=NS) == "SHM"]
     assert len(shm) == 1 and int(shm[0].findtext("p:segment_size", namespaces=NS)) == 32 * 1024 * 1024
     participant = root.find(".//p:participant", NS)

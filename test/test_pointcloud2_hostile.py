@@ -9,7 +9,6 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
 from test_pointcloud2 import FakeCloud, FakeField, clouds, reference_decode
 
 from ros2_mos.errors import ScanError

@@ -11,7 +11,9 @@ from ros2_mos.projection import PixelIndex
 
 def pixels(rows, cols, ranges):
     n = len(rows)
-    return PixelIndex(np.array(cols, np.int32), np.array(rows, np.int32), np.array(ranges, np.float32), np.ones(n, bool))
+    return PixelIndex(
+        np.array(cols, np.int32), np.array(rows, np.int32), np.array(ranges, np.float32), np.ones(n, bool)
+    )
 
 
 def test_occluded_point_takes_the_label_of_neighbours_at_its_own_range():
@@ -54,7 +56,9 @@ def test_mode_nearest_uses_own_pixel():
     np.testing.assert_array_equal(backproject(prob, prob, pix, PostprocessConfig(mode="nearest")), [1, 11])
 
 
-@pytest.mark.parametrize("kwargs", [{"mode": "bilateral"}, {"window": 4}, {"k": 0}, {"k": 10, "window": 3}, {"cutoff": 0}])
+@pytest.mark.parametrize(
+    "kwargs", [{"mode": "bilateral"}, {"window": 4}, {"k": 0}, {"k": 10, "window": 3}, {"cutoff": 0}]
+)
 def test_invalid_settings_are_rejected(kwargs):
     with pytest.raises(ConfigError):
         PostprocessConfig(**kwargs)

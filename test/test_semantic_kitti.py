@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 
 from ros2_mos.datasets.semantic_kitti import (
-    KITTI_TR, SemanticKittiSequence, read_calib, read_poses, write_calib, write_label, write_poses, write_scan,
+    KITTI_TR,
+    SemanticKittiSequence,
+    read_calib,
+    read_poses,
+    write_calib,
+    write_label,
+    write_poses,
+    write_scan,
     write_times,
 )
 from ros2_mos.errors import DatasetError
@@ -29,7 +36,8 @@ def test_sequence_round_trip(tmp_path):
     np.testing.assert_allclose(frame.pose, poses[2], atol=1e-9)
     np.testing.assert_allclose(read_calib(seq / "calib.txt"), KITTI_TR)
     # The file holds camera poses: Tr @ P @ inv(Tr).
-    np.testing.assert_allclose(read_poses(seq / "poses.txt")[2], KITTI_TR @ poses[2] @ np.linalg.inv(KITTI_TR), atol=1e-9)
+    np.testing.assert_allclose(read_poses(seq / "poses.txt")[2], KITTI_TR @ poses[2] @ np.linalg.inv(KITTI_TR),
+                               atol=1e-9)
     # Plain numpy reads the same bytes.
     raw = np.fromfile(seq / "velodyne" / "000002.bin", np.float32).reshape(-1, 4)
     np.testing.assert_array_equal(raw[:, :3], frame.points)

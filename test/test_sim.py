@@ -11,8 +11,8 @@ import pytest
 from ros2_mos.config import SENSOR_PRESETS, SensorConfig
 from ros2_mos.datasets.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_label, read_poses
 from ros2_mos.errors import ConfigError
-from ros2_mos.labels import MOVING_IDS, semantic_ids, instance_ids
-from ros2_mos.sim import SequenceSimulator, format_stats, sequence_dir, simulate_sequence, with_effects, sim_preset
+from ros2_mos.labels import MOVING_IDS, instance_ids, semantic_ids
+from ros2_mos.sim import SequenceSimulator, format_stats, sequence_dir, sim_preset, simulate_sequence, with_effects
 from ros2_mos.sim.geometry import TriangleSoup, box, quad
 from ros2_mos.sim.lidar import Lidar, beam_elevations
 from ros2_mos.sim.motion import Stop, simulate_profile
@@ -33,7 +33,9 @@ def test_ray_cast_hits_a_box_and_a_plane_at_the_analytic_distance() -> None:
     ground = TriangleSoup.labelled(quad(-50, -50, 50, 50, 0.0), 40)
     wall = TriangleSoup.labelled(box((1.0, 4.0, 4.0), (10.5, 0.0, 2.0)), 50, inst=7)
     origin = np.array([0.0, 0.0, 1.0])
-    dirs = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, -1.0] / np.sqrt(2), [0.0, 0.0, 1.0], [10.0, 1.0, 2.0] / np.sqrt(105.0)])
+    dirs = np.array(
+        [[1.0, 0.0, 0.0], [0.0, 1.0, -1.0] / np.sqrt(2), [0.0, 0.0, 1.0], [10.0, 1.0, 2.0] / np.sqrt(105.0)]
+    )
     hits = cast_nearest([SoupScene(ground, origin * 0), SoupScene(wall, np.array([100.0, 0.0, 0.0]))], origin, dirs)
     # front face of the box at x = 10; the ground 1 m below at 45 degrees; nothing above; (10, 1, 3) on the face
     assert hits.distance[0] == pytest.approx(10.0, abs=1e-4)

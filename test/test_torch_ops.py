@@ -5,8 +5,9 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from scenes import street_sequence  # noqa: E402
 from conftest import TEST_SENSOR  # noqa: E402
+from scenes import street_sequence  # noqa: E402
+
 from ros2_mos import torch_ops  # noqa: E402
 from ros2_mos.config import PostprocessConfig, ResidualConfig  # noqa: E402
 from ros2_mos.postprocess import knn_backproject  # noqa: E402
@@ -18,8 +19,10 @@ def test_range_image_and_residuals_match_numpy():
     seq = street_sequence(3)
     (p0, _, _, pose0), (p1, _, _, pose1), (p2, _, _, pose2) = seq
     cur = torch.from_numpy(p2)
-    np.testing.assert_allclose(torch_ops.range_image(cur, TEST_SENSOR).numpy(), project_range(p2, TEST_SENSOR), atol=1e-4)
-    ref = residual_images(project_range(p2, TEST_SENSOR), pose2, [(p1, pose1), (p0, pose0)], 2, TEST_SENSOR, ResidualConfig())
+    np.testing.assert_allclose(torch_ops.range_image(cur, TEST_SENSOR).numpy(), project_range(p2, TEST_SENSOR),
+                               atol=1e-4)
+    ref = residual_images(project_range(p2, TEST_SENSOR), pose2, [(p1, pose1), (p0, pose0)], 2, TEST_SENSOR,
+                          ResidualConfig())
     got = torch_ops.residual_images(torch_ops.range_image(cur, TEST_SENSOR), pose2,
                                     [(torch.from_numpy(p1), pose1), (torch.from_numpy(p0), pose0)], 2, TEST_SENSOR,
                                     ResidualConfig()).numpy()

@@ -50,7 +50,9 @@ class SegmentErrors:
         """Pool the segments of several sequences (the devkit averages over all of them)."""
         if not parts:
             return SegmentErrors(np.zeros(0, int), np.zeros(0), np.zeros(0), np.zeros(0))
-        return SegmentErrors(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("first_frame", "length", "t_err", "r_err")))
+        return SegmentErrors(
+            *(np.concatenate([getattr(p, f) for p in parts]) for f in ("first_frame", "length", "t_err", "r_err"))
+        )
 
     @property
     def translation_pct(self) -> float:
@@ -127,11 +129,11 @@ def segment_errors(
     for length in lengths:
         last = last_frames(dist, firsts, length)
         ok = last >= 0
-        f, l = firsts[ok], last[ok]
+        f, last_ok = firsts[ok], last[ok]
         if len(f) == 0:
             continue
-        delta_gt = np.linalg.inv(gt[f]) @ gt[l]
-        delta_est = np.linalg.inv(est[f]) @ est[l]
+        delta_gt = np.linalg.inv(gt[f]) @ gt[last_ok]
+        delta_est = np.linalg.inv(est[f]) @ est[last_ok]
         err = np.linalg.inv(delta_est) @ delta_gt
         out_first.append(f)
         out_len.append(np.full(len(f), float(length)))
@@ -139,7 +141,9 @@ def segment_errors(
         out_r.append(rotation_angles(err[:, :3, :3]) / length)
     if not out_first:
         return SegmentErrors.concatenate([])
-    return SegmentErrors(np.concatenate(out_first), np.concatenate(out_len), np.concatenate(out_t), np.concatenate(out_r))
+    return SegmentErrors(
+        np.concatenate(out_first), np.concatenate(out_len), np.concatenate(out_t), np.concatenate(out_r)
+    )
 
 
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:

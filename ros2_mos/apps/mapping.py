@@ -231,7 +231,9 @@ class MapBuilder:
         self.cleaned = VoxelMap(VoxelMapConfig(config.voxel_size))
         self.scans = 0
 
-    def add(self, points: np.ndarray, pose: np.ndarray, remove: np.ndarray, tags: np.ndarray, stamp: float = 0.0) -> None:
+    def add(
+        self, points: np.ndarray, pose: np.ndarray, remove: np.ndarray, tags: np.ndarray, stamp: float = 0.0
+    ) -> None:
         """Add one scan (sensor frame) with its world pose; ``remove`` marks the points the cleaned map skips."""
         pts = np.asarray(points, dtype=np.float32)
         remove = np.asarray(remove, bool).reshape(-1)
@@ -296,7 +298,9 @@ def build_maps(
     for frame in progress(sequence):
         pose = frame.pose if mapping.poses == "gt" else None
         res = pipeline.process(frame.points, frame.remission, frame.timestamp, pose=pose)
-        builder.add(frame.points, res.pose, res.labels.astype(bool), gt_tags(frame.labels, len(frame.points)), frame.timestamp)
+        builder.add(
+            frame.points, res.pose, res.labels.astype(bool), gt_tags(frame.labels, len(frame.points)), frame.timestamp
+        )
         poses.append(res.pose)
         n_valid = int(res.valid.sum())
         moving.append(float(res.labels.sum()) / n_valid if n_valid else 0.0)

@@ -118,7 +118,11 @@ def run_odometry(
         raise ConfigError(f"unknown mask {mask!r}; choose from {', '.join(MASKS)}")
     if mask.startswith("gt") and not sequence.has_labels:
         raise DatasetError(f"{sequence.root}: mask {mask!r} needs ground-truth labels/ and there are none")
-    frames = _mos_frames(sequence, config, model, progress) if mask == "mos" else _kiss_frames(sequence, mask, config, progress)
+    frames = (
+        _mos_frames(sequence, config, model, progress)
+        if mask == "mos"
+        else _kiss_frames(sequence, mask, config, progress)
+    )
     poses, ms, masked = [], [], []
     for pose, t, share in frames:
         poses.append(pose)

@@ -27,14 +27,17 @@ def _lengths(segments: str) -> tuple[float, ...]:
 
 @app.command()
 def odometry(
-    sequence_dir: Path = typer.Argument(..., help="SemanticKITTI sequence folder with poses.txt (labels/ for gt masks), or a dataset root"),
-    mask: str = typer.Option("all", help="none | mos | gt | gt-map | all (or a comma list): what is kept out of KISS-ICP"),
+    sequence_dir: Path = typer.Argument(..., help="SemanticKITTI sequence folder with poses.txt "
+                                                  "(labels/ for gt masks), or a dataset root"),
+    mask: str = typer.Option("all",
+                             help="none | mos | gt | gt-map | all (or a comma list): what is kept out of KISS-ICP"),
     model: Optional[Path] = typer.Option(None, help="ONNX model for --mask mos (default: the shipped model)"),
     config: Optional[Path] = typer.Option(None, help="Pipeline YAML (odometry settings apply to every mask)"),
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences of a dataset root"),
     segments: str = typer.Option("100,200,300,400,500,600,700,800", help="Segment lengths in m (KITTI: 100..800)"),
     alignment: str = typer.Option("se3", help="ATE alignment: se3 (Umeyama, no scale) | first | none"),
-    save_poses: Optional[Path] = typer.Option(None, help="Write each run's poses as KITTI poses.txt: DIR/<seq>/<mask>.txt"),
+    save_poses: Optional[Path] = typer.Option(None,
+                                              help="Write each run's poses as KITTI poses.txt: DIR/<seq>/<mask>.txt"),
 ) -> None:
     """KISS-ICP with raw, MOS-masked and ground-truth-masked scans; KITTI relative errors and ATE.
 
@@ -67,7 +70,9 @@ def odometry(
             if m.startswith("gt") and not seq.has_labels and mask == "all":
                 typer.echo(f"{seq.name}: no labels/, skipping mask {m}", err=True)
                 continue
-            run = run_odometry(seq, m, cfg, mos_model, progress=lambda it, m=m, seq=seq: tqdm(it, total=len(seq), desc=f"{seq.name} {m}", leave=False))
+            run = run_odometry(seq, m, cfg, mos_model,
+                               progress=lambda it, m=m, seq=seq: tqdm(it, total=len(seq), desc=f"{seq.name} {m}",
+                                                                      leave=False))
             err = evaluate_run(run, seq, lengths, alignment=alignment)
             pooled[m].append(err.segments)
             rows.append(f"{seq.name:>9} {m:>7} {_fmt(err.translation_pct):>8} {_fmt(err.rotation_deg_per_100m):>15} "
@@ -121,6 +126,7 @@ def map_command(
     for name, vm, path in (("raw", result.raw, raw_path), ("cleaned", result.cleaned, clean_path)):
         typer.echo(f"{name:>8} {len(vm):>10} {_fmt(100 * ghost_share(vm), 3) if seq.has_labels else '-':>8}  {path}")
     if seq.has_labels:
-        typer.echo(f"static voxels of the raw map kept in the cleaned map: {_fmt(100 * result.builder.static_kept(), 1)} %")
+        typer.echo("static voxels of the raw map kept in the cleaned map: "
+                   f"{_fmt(100 * result.builder.static_kept(), 1)} %")
     if png is not None:
         typer.echo(f"wrote {write_bev_png(png, {'raw': result.raw, 'MOS-cleaned': result.cleaned})}")

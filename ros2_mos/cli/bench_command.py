@@ -24,12 +24,15 @@ def shipped_models() -> list[Path]:
 
 @app.command()
 def bench(
-    data: Path = typer.Option(Path("data/bench"), help="Where the benchmark sequence and bag are (simulated if missing)"),
+    data: Path = typer.Option(Path("data/bench"),
+                              help="Where the benchmark sequence and bag are (simulated if missing)"),
     scans: int = typer.Option(50, min=5, help="Scans timed per configuration (after 5 warm-up scans)"),
     model: Optional[list[Path]] = typer.Option(None, help="ONNX models to time (default: every shipped model)"),
     threads: int = typer.Option(0, help="ONNX Runtime intra-op threads (0 = runtime default)"),
-    geometry: str = typer.Option("numpy", help="Residuals + kNN backend: numpy, or torch (GPU path, CUDA when present)"),
-    reference: bool = typer.Option(True, help="Also time the LiDAR-MOS-style reference (numpy residuals, SalsaNext N=8 eager)"),
+    geometry: str = typer.Option("numpy",
+                                 help="Residuals + kNN backend: numpy, or torch (GPU path, CUDA when present)"),
+    reference: bool = typer.Option(True, help="Also time the LiDAR-MOS-style reference "
+                                              "(numpy residuals, SalsaNext N=8 eager)"),
     reference_scans: int = typer.Option(5, min=1, help="Scans timed for the (slow) reference"),
     node: bool = typer.Option(True, help="Also run mos_node as a process with the bag replayed at 10 Hz and 20 Hz"),
     node_model: Optional[Path] = typer.Option(None, help="Model for the node runs (default: the shipped default)"),

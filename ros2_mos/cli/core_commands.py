@@ -25,10 +25,13 @@ def load_config(config: Optional[Path], model: Optional[Path]):
 
 @app.command()
 def infer(
-    sequence_dir: Path = typer.Argument(..., help="SemanticKITTI sequence folder (needs only velodyne/*.bin) or a dataset root"),
+    sequence_dir: Path = typer.Argument(..., help="SemanticKITTI sequence folder (needs only velodyne/*.bin) "
+                                                  "or a dataset root"),
     out: Path = typer.Option(..., "--out", help="Output root: writes sequences/XX/predictions/*.label"),
-    model: Optional[Path] = typer.Option(None, help="ONNX model exported by `ros2-mos export` (default: the shipped model)"),
-    config: Optional[Path] = typer.Option(None, help="The node's ROS params file (config/mos.yaml); default: built-in defaults"),
+    model: Optional[Path] = typer.Option(None,
+                                         help="ONNX model exported by `ros2-mos export` (default: the shipped model)"),
+    config: Optional[Path] = typer.Option(None, help="The node's ROS params file (config/mos.yaml); "
+                                                     "default: built-in defaults"),
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences of a dataset root"),
     use_poses: bool = typer.Option(False, "--use-poses", help="Use the dataset's poses.txt instead of KISS-ICP"),
 ) -> None:

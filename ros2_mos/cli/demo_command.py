@@ -44,7 +44,8 @@ def demo(
     data: Path = typer.Option(Path("data/demo"), help="Where the demo sequence and bag are (simulated if missing)"),
     scans: int = typer.Option(100, min=10, help="Scans in the demo sequence (10 Hz)"),
     model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped one)"),
-    rate: float = typer.Option(1.0, help="Replay speed factor (1.0 = the sensor's 10 Hz; 0 = lock-step, as fast as the node goes)"),
+    rate: float = typer.Option(1.0, help="Replay speed factor (1.0 = the sensor's 10 Hz; "
+                                         "0 = lock-step, as fast as the node goes)"),
 ) -> None:
     """Simulate a street, replay it as a bag through a running mos_node, print Hz, stage ms and moving IoU."""
     from ros2_mos.ros.harness import NodeProcess, isolate_ros_domain, replay_through_node

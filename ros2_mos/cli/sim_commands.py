@@ -13,18 +13,21 @@ from ros2_mos.cli.app import app, fail
 def simulate(
     ctx: typer.Context,
     out_dir: Path = typer.Argument(..., help="Dataset root: writes OUT_DIR/sequences/XX/..."),
-    sequences: list[str] = typer.Option(["00"], "--sequences", "-s", help="Sequence names: --sequences 00 01 02 (or repeated, or '00,01')"),
+    sequences: list[str] = typer.Option(["00"], "--sequences", "-s",
+                                        help="Sequence names: --sequences 00 01 02 (or repeated, or '00,01')"),
     scans: int = typer.Option(100, "--scans", "-n", min=1, help="Scans per sequence (10 Hz)"),
     preset: str = typer.Option("benchmark", help="Simulation preset: easy, benchmark, traffic_jam"),
     seed: int = typer.Option(0, min=0, help="Random seed; the same seed gives the same sequences"),
     sensor: str = typer.Option("hdl64", help="Sensor preset: hdl64, vlp16, vlp32c, os1-64, os1-128"),
     intra_sweep_motion: bool = typer.Option(False, "--intra-sweep-motion/--no-intra-sweep-motion",
-                                            help="Cast each column from the ego pose at its firing time (skewed scans)"),
+                                            help="Cast each column from the ego pose at its firing time "
+                                                 "(skewed scans)"),
     bag: bool = typer.Option(False, "--bag/--no-bag", help="Also write OUT_DIR/bags/XX (rosbag2, PointCloud2)"),
     bag_storage: str = typer.Option("mcap", help="Bag storage: mcap or sqlite3"),
     topic: str = typer.Option("/points", help="PointCloud2 topic in the bag"),
     frame_id: str = typer.Option("velodyne", help="frame_id of the clouds in the bag"),
-    stats: bool = typer.Option(False, "--stats", help="Print statistics: points/scan, moving fraction, objects, speeds"),
+    stats: bool = typer.Option(False, "--stats",
+                               help="Print statistics: points/scan, moving fraction, objects, speeds"),
     randomize: bool = typer.Option(False, "--randomize/--no-randomize",
                                    help="Draw each sequence's sensor noise, dropout, skew and mounting at random "
                                         "(training data; seeded by --seed and the sequence name)"),
@@ -49,7 +52,8 @@ def simulate(
     if bag and (out_dir / "bags").exists():
         clash = [n for n in names if (out_dir / "bags" / n).exists()]
         if clash:
-            fail(f"bag folders already exist (remove them first): {', '.join(str(out_dir / 'bags' / n) for n in clash)}")
+            fail("bag folders already exist (remove them first): "
+                 f"{', '.join(str(out_dir / 'bags' / n) for n in clash)}")
     sim = sim_preset(preset)
     if intra_sweep_motion:
         sim = with_effects(sim, intra_sweep_motion=True)

@@ -13,8 +13,10 @@ from ros2_mos.cli.app import app, fail
 @app.command()
 def suite(
     model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped model)"),
-    config: Optional[Path] = typer.Option(None, help="The node's ROS params file (config/mos.yaml); default: built-in defaults"),
-    data: Path = typer.Option(Path("data/suite"), help="Where the suite's simulated sequences live (simulated on first use)"),
+    config: Optional[Path] = typer.Option(None, help="The node's ROS params file (config/mos.yaml); "
+                                                     "default: built-in defaults"),
+    data: Path = typer.Option(Path("data/suite"),
+                              help="Where the suite's simulated sequences live (simulated on first use)"),
     real: Path = typer.Option(Path("data/real-kitti08-dev"),
                               help="Real development scans (../shared/real/unpack.sh DEST); skipped where absent"),
     scans: int = typer.Option(100, min=10, max=2000, help="Scans per simulated sequence"),

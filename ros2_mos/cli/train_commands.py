@@ -27,7 +27,8 @@ def train(
 ) -> None:
     """Train a MOS network; resumes from OUT/last.pt.
 
-    Multi-GPU / multi-process: ``torchrun --nproc_per_node=G $(which ros2-mos) train ...`` (DDP, NCCL on GPUs, gloo on CPU).
+    Multi-GPU / multi-process: ``torchrun --nproc_per_node=G $(which ros2-mos) train ...`` \
+(DDP, NCCL on GPUs, gloo on CPU).
     """
     import dataclasses
 
@@ -90,7 +91,8 @@ def export(
         fail(f"--threshold must be in (0, 1), got {threshold}")
     extra = None if threshold is None else {"recommended_threshold": threshold}
     report = export_checkpoint(checkpoint, out, extra=extra)
-    typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.2f} MB, ONNX vs PyTorch max abs diff {report.max_abs_diff:.1e})")
+    typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.2f} MB, "
+               f"ONNX vs PyTorch max abs diff {report.max_abs_diff:.1e})")
 
 
 @app.command()
@@ -132,8 +134,9 @@ def ablation(
 
 @app.command("import-lidar-mos")
 def import_lidar_mos(
-    model_dir: Path = typer.Argument(..., help="A released LiDAR-MOS model folder (arch_cfg.yaml + SalsaNext_valid_best, "
-                                               "or + backbone, segmentation_decoder, segmentation_head)"),
+    model_dir: Path = typer.Argument(...,
+                                     help="A released LiDAR-MOS model folder (arch_cfg.yaml + SalsaNext_valid_best, "
+                                          "or + backbone, segmentation_decoder, segmentation_head)"),
     out: Path = typer.Option(..., "--out", help="ONNX file to write (run it with -p model:=FILE / --model FILE)"),
 ) -> None:
     """Turn the LiDAR-MOS authors' SalsaNext or RangeNet++ (N = 1 or 8) into a model the node runs unchanged."""

@@ -93,7 +93,9 @@ class ReplayReport:
         return len(self.labels) / self.elapsed_s if self.elapsed_s > 0 else 0.0
 
 
-def replay_through_node(bag: Path, rate: float, restamp: bool = False, subscriber_timeout: float = 30.0) -> ReplayReport:
+def replay_through_node(
+    bag: Path, rate: float, restamp: bool = False, subscriber_timeout: float = 30.0
+) -> ReplayReport:
     """Replay ``bag`` to a running node (rate 0 = lock-step) and collect its /mos/labels."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor

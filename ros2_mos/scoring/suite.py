@@ -140,7 +140,8 @@ def real_sequences(real_root: Path | None) -> list[Path]:
     """The real development sequences under ``real_root`` (``sequences/08a``, ``08b``), or none."""
     if real_root is None or not (real_root / "sequences").is_dir():
         return []
-    return sorted(p for p in (real_root / "sequences").iterdir() if (p / "velodyne").is_dir() and (p / "labels").is_dir())
+    return sorted(p for p in (real_root / "sequences").iterdir()
+                  if (p / "velodyne").is_dir() and (p / "labels").is_dir())
 
 
 def run_suite(pipeline: MosPipeline, sim_root: Path, real_root: Path | None, scans: int = 100,

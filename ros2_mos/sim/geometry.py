@@ -120,7 +120,9 @@ def rotate_z(points: np.ndarray, yaw: np.ndarray | float) -> np.ndarray:
     return np.stack([c * x - s * y, s * x + c * y, np.broadcast_to(points[..., 2], x.shape)], axis=-1)
 
 
-def place(template: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, z: float | np.ndarray = 0.0) -> np.ndarray:
+def place(
+    template: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, z: float | np.ndarray = 0.0
+) -> np.ndarray:
     """Copies of ``template`` (T, 3, 3) at poses (x, y, yaw) of shape (K,): returns (K, T, 3, 3)."""
     x, y, yaw = (np.asarray(a, float).reshape(-1) for a in (x, y, yaw))
     z = np.broadcast_to(np.asarray(z, float), x.shape)

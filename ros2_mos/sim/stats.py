@@ -111,7 +111,8 @@ def format_stats(stats: list[SequenceStats]) -> str:
                      f"standing people/vehicles {len(s.standing_objects)}")
         for kind, v in sorted(s.speeds.items()):
             slow = 100 * np.mean(np.asarray(v) < 2.0)
-            lines.append(f"  speed {kind:<11}  m/s p5/p25/p50/p75/p95 {_quantiles(v)}  ({slow:.0f} % of sightings < 2 m/s)")
+            lines.append(f"  speed {kind:<11}  m/s p5/p25/p50/p75/p95 {_quantiles(v)}  "
+                         f"({slow:.0f} % of sightings < 2 m/s)")
         ego = np.asarray(s.ego_speeds) if s.ego_speeds else np.zeros(1)
         lines.append(f"  ego                mean {ego.mean():.1f} m/s, max {ego.max():.1f} m/s, "
                      f"standing still in {100 * np.mean(ego < 0.01):.0f} % of scans")

@@ -81,7 +81,9 @@ def simulate_sequence(
     return stats
 
 
-def iter_sequence_scans(seq_dir: str | Path, epoch_ns: int = BAG_EPOCH_NS) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+def iter_sequence_scans(
+    seq_dir: str | Path, epoch_ns: int = BAG_EPOCH_NS
+) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """(stamp_ns, points, intensity) of every scan of a written sequence, for a bag writer."""
     seq = SemanticKittiSequence(seq_dir)
     for frame in seq:

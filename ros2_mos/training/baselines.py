@@ -56,7 +56,9 @@ def _pixel_iou(pred: np.ndarray, label: np.ndarray) -> tuple[int, int, int]:
     return int((pred & gt).sum()), int((pred & ~gt & counted).sum()), int((~pred & gt).sum())
 
 
-def tune_residual_threshold(caches: Sequence[SequenceCache], taus: Sequence[float], stride: int = 2) -> tuple[ResidualThreshold, dict[float, float]]:
+def tune_residual_threshold(
+    caches: Sequence[SequenceCache], taus: Sequence[float], stride: int = 2
+) -> tuple[ResidualThreshold, dict[float, float]]:
     """The τ of best pixel IoU on the validation caches."""
     scores: dict[float, float] = {}
     for tau in taus:
@@ -78,7 +80,9 @@ def tune_region_growing(
     stride: int = 4,
 ) -> tuple[ResidualRegionGrowing, dict[tuple[float, float, float], float]]:
     """Grid search of (τ_seed, δ, ρ) by pixel IoU on the validation caches."""
-    counts: dict[tuple[float, float, float], np.ndarray] = {k: np.zeros(3, np.int64) for k in product(taus, rel_jumps, fractions)}
+    counts: dict[tuple[float, float, float], np.ndarray] = {
+        k: np.zeros(3, np.int64) for k in product(taus, rel_jumps, fractions)
+    }
     for cache in caches:
         for i in range(0, len(cache), stride):
             raw = np.asarray(cache.frame[i], np.float32)

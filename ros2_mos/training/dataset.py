@@ -130,7 +130,8 @@ def _cache_key(spec: CacheSpec, sequence: SemanticKittiSequence) -> str:
 
 
 def perturb_pose(transform: np.ndarray, sigma_t: float, sigma_deg: float, rng: np.random.Generator) -> np.ndarray:
-    """``transform`` composed with a random rigid motion (translation σ_t m per axis, rotation σ_deg about a random axis)."""
+    """``transform`` composed with a random rigid motion (translation σ_t m per axis, rotation σ_deg
+    about a random axis)."""
     if sigma_t == 0.0 and sigma_deg == 0.0:
         return transform
     axis = rng.normal(size=3)
@@ -216,7 +217,9 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
                 v=pix.v.astype(np.int16),
                 range=pix.range,
                 in_image=pix.in_image,
-                classes=(to_moving_classes(scan.labels) if scan.labels is not None else np.full(len(pix.u), IGNORE, np.int8)),
+                classes=(
+                    to_moving_classes(scan.labels) if scan.labels is not None else np.full(len(pix.u), IGNORE, np.int8)
+                ),
             )
         buffer.insert(0, scan)
         del buffer[history:]
@@ -298,7 +301,11 @@ class SequenceCache:
         poses = _sequence_poses(sequence, spec.poses, spec.sensor)
         workers = max(1, min(workers, s))
         bounds = np.linspace(0, s, workers + 1).astype(int)
-        jobs = [(str(sequence.root), spec, poses, int(a), int(b), str(directory)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+        jobs = [
+            (str(sequence.root), spec, poses, int(a), int(b), str(directory))
+            for a, b in zip(bounds[:-1], bounds[1:])
+            if b > a
+        ]
         if workers == 1:
             for job in jobs:
                 _process_chunk(job)
@@ -391,7 +398,9 @@ class MosDataset(Dataset):
         n = self.setup.n_past
         if self.setup.kind == "residual":
             channels = [o - 1 for o in self.setup.offsets]
-            extra = read(cache.residual[i, channels], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
+            extra = (
+                read(cache.residual[i, channels], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
+            )
         else:
             extra = read(cache.past[i, : 5 * n], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
         return current, extra, read(cache.label[i], np.int64)
@@ -481,7 +490,9 @@ def build_caches(
     return [SequenceCache.build(d, cache_root, spec, workers=workers, progress=progress) for d in sequence_dirs]
 
 
-def channel_statistics(caches: Sequence[SequenceCache], max_scans: int = 200) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def channel_statistics(
+    caches: Sequence[SequenceCache], max_scans: int = 200
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Means and stds of r, x, y, z, e over occupied pixels of (a sample of) the training scans.
 
     The model's normalisation is fitted to its own training data (the simulator's

@@ -27,10 +27,11 @@ import torch
 from torch import nn
 
 from ros2_mos.errors import ModelError
-from ros2_mos.metadata import METADATA_KEY, ModelMetadata, save_model_atomically
 
 # The tensor names are the contract with the runtime: one definition, in the runtime.
 from ros2_mos.inference import INPUT_NAME, OUTPUT_NAME  # noqa: E402
+from ros2_mos.metadata import METADATA_KEY, ModelMetadata, save_model_atomically
+
 DEFAULT_OPSET = 17
 
 
@@ -133,7 +134,9 @@ def export_onnx(
         nonlocal max_diff
         max_diff = _check_with_onnxruntime(tmp, example.numpy(), reference.numpy())
         if not max_diff <= atol:
-            raise ModelError(f"ONNX Runtime disagrees with PyTorch after export: max abs diff {max_diff:.3g} > {atol:.3g}")
+            raise ModelError(
+                f"ONNX Runtime disagrees with PyTorch after export: max abs diff {max_diff:.3g} > {atol:.3g}"
+            )
 
     save_model_atomically(proto, path, agrees_with_pytorch if check else None)
     return ExportReport(path=path, max_abs_diff=max_diff, size_bytes=path.stat().st_size)

@@ -20,7 +20,9 @@ from ros2_mos.errors import ConfigError
 from ros2_mos.labels import IGNORE
 
 
-def inverse_frequency_weights(counts: Sequence[int] | np.ndarray, eps: float = 1e-3, ignore: Sequence[int] = ()) -> np.ndarray:
+def inverse_frequency_weights(
+    counts: Sequence[int] | np.ndarray, eps: float = 1e-3, ignore: Sequence[int] = ()
+) -> np.ndarray:
     """``1 / (frequency + eps)`` per class from label counts; classes in ``ignore`` get weight 0."""
     counts = np.asarray(counts, dtype=np.float64)
     total = counts.sum()
@@ -62,7 +64,9 @@ def lovasz_softmax_flat(probas: torch.Tensor, labels: torch.Tensor, classes: str
     return torch.stack(losses).mean()
 
 
-def lovasz_softmax(probas: torch.Tensor, labels: torch.Tensor, ignore: int = IGNORE, classes: str = "present") -> torch.Tensor:
+def lovasz_softmax(
+    probas: torch.Tensor, labels: torch.Tensor, ignore: int = IGNORE, classes: str = "present"
+) -> torch.Tensor:
     """Lovász-Softmax of (B, C, H, W) probabilities against (B, H, W) labels, over the whole batch."""
     c = probas.shape[1]
     flat_p = probas.permute(0, 2, 3, 1).reshape(-1, c)
@@ -74,7 +78,9 @@ def lovasz_softmax(probas: torch.Tensor, labels: torch.Tensor, ignore: int = IGN
 class MosLoss(nn.Module):
     """``wCE + lovasz_weight * Lovász-Softmax`` on logits; returns (total, ce, lovasz)."""
 
-    def __init__(self, class_weights: Sequence[float] | np.ndarray, lovasz_weight: float = 1.0, ignore: int = IGNORE) -> None:
+    def __init__(
+        self, class_weights: Sequence[float] | np.ndarray, lovasz_weight: float = 1.0, ignore: int = IGNORE
+    ) -> None:
         super().__init__()
         self.register_buffer("weight", torch.as_tensor(np.asarray(class_weights, np.float32)))
         self.lovasz_weight = float(lovasz_weight)
@@ -86,5 +92,9 @@ class MosLoss(nn.Module):
             zero = logits.sum() * 0.0
             return zero, zero, zero
         ce = F.cross_entropy(logits, labels, weight=self.weight, ignore_index=self.ignore)
-        lov = lovasz_softmax(torch.softmax(logits, dim=1), labels, self.ignore) if self.lovasz_weight else logits.sum() * 0.0
+        lov = (
+            lovasz_softmax(torch.softmax(logits, dim=1), labels, self.ignore)
+            if self.lovasz_weight
+            else logits.sum() * 0.0
+        )
         return ce + self.lovasz_weight * lov, ce, lov

@@ -80,7 +80,9 @@ def knn_postprocess(proj_range: torch.Tensor, unproj_range: torch.Tensor, proj_a
     knn_argmax = torch.gather(unfold_argmax[:, :, idx_list], 1, knn_idx)
     if cutoff > 0:
         knn_argmax[torch.gather(k2_distances, 1, knn_idx) > cutoff] = nclasses
-    onehot = torch.zeros((1, nclasses + 1, len(idx_list))).scatter_add_(1, knn_argmax, torch.ones_like(knn_argmax).float())
+    onehot = torch.zeros((1, nclasses + 1, len(idx_list))).scatter_add_(
+        1, knn_argmax, torch.ones_like(knn_argmax).float()
+    )
     return onehot[:, 1:-1].argmax(dim=1)[0] + 1
 
 
@@ -98,7 +100,9 @@ class ReferencePipeline:
         self.stds = torch.tensor([12.32, 11.47, 6.91, 0.86, 0.16])[:, None, None]
         self.past: list[tuple[np.ndarray, np.ndarray]] = []
 
-    def process(self, points: np.ndarray, remission: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+    def process(
+        self, points: np.ndarray, remission: np.ndarray, pose: np.ndarray
+    ) -> tuple[np.ndarray, dict[str, float]]:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         residuals = np.zeros((self.n_past, self.sensor.height, self.sensor.width), np.float32)

@@ -31,6 +31,7 @@ def test_shipped_model_finds_moving_objects_on_a_held_out_street(tmp_path):
         assert pred.result.labels.shape == pred.gt_classes.shape
         if pred.result.residuals_complete:
             score.update(pred.result.labels, pred.gt_classes)
-    print(f"shipped model, held-out street: moving IoU {100 * score.iou:.1f} (TP {score.tp}, FP {score.fp}, FN {score.fn})")
+    print(f"shipped model, held-out street: moving IoU {100 * score.iou:.1f} "
+          f"(TP {score.tp}, FP {score.fp}, FN {score.fn})")
     assert score.tp > 0
     assert score.iou > MIN_IOU

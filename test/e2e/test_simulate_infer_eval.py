@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import make_threshold_model
 from typer.testing import CliRunner
 
-from conftest import make_threshold_model
 from ros2_mos.cli import app
 from ros2_mos.config import MosConfig, sensor_preset
 from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_label
@@ -22,8 +22,8 @@ N_SCANS = 25
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("sim")
-    result = runner.invoke(app, ["simulate", str(root), "--sequences", "00", "--scans", str(N_SCANS), "--preset", "easy",
-                                 "--sensor", "vlp16", "--seed", "3", "--no-bag"])
+    result = runner.invoke(app, ["simulate", str(root), "--sequences", "00", "--scans", str(N_SCANS),
+                                 "--preset", "easy", "--sensor", "vlp16", "--seed", "3", "--no-bag"])
     assert result.exit_code == 0, result.output
     return root
 
@@ -35,7 +35,8 @@ def vlp16_model(tmp_path_factory) -> Path:
 
 def test_infer_writes_one_label_per_point_and_eval_scores_it(dataset, vlp16_model, tmp_path):
     pred = tmp_path / "pred"
-    result = runner.invoke(app, ["infer", str(dataset / "sequences" / "00"), "--model", str(vlp16_model), "--out", str(pred)])
+    result = runner.invoke(app, ["infer", str(dataset / "sequences" / "00"), "--model", str(vlp16_model),
+                                 "--out", str(pred)])
     assert result.exit_code == 0, result.output
     seq = SemanticKittiSequence(dataset / "sequences" / "00")
     files = sorted((pred / "sequences" / "00" / "predictions").glob("*.label"))

@@ -19,7 +19,7 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from conftest import make_wrong_channels_model  # noqa: E402
-from ros_harness import running_harness, BASE_STAMP, TYPES, cloud  # noqa: E402
+from ros_harness import BASE_STAMP, TYPES, cloud, running_harness  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
 from ros2_mos.errors import ScanError  # noqa: E402
@@ -238,7 +238,8 @@ def _hostile_clouds(stamp: int, rng: np.random.Generator) -> list[tuple[str, obj
     case("point_step 0", lambda c: setattr(c, "point_step", 0))
     case("point_step huge", lambda c: setattr(c, "point_step", MAX_POINT_STEP + 1))
     case("duplicate field name", lambda c: c.fields.append(field("x", 0)))
-    case("too many fields", lambda c: setattr(c, "fields", [*c.fields, *(field(f"f{k}", 0, 2) for k in range(MAX_FIELDS))]))
+    case("too many fields",
+         lambda c: setattr(c, "fields", [*c.fields, *(field(f"f{k}", 0, 2) for k in range(MAX_FIELDS))]))
     for datatype in (0, 9, 255):
         case(f"unsupported datatype {datatype}", lambda c, d=datatype: setattr(c.fields[1], "datatype", d))
     case("integer coordinates", lambda c: setattr(c.fields[0], "datatype", INT16))

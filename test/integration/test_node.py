@@ -16,7 +16,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from ros_harness import running_harness, OUTPUTS, TYPES, BASE_STAMP, cloud, isolate_ros  # noqa: E402
+from ros_harness import BASE_STAMP, OUTPUTS, TYPES, cloud, isolate_ros, running_harness  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
 from ros2_mos.config import MosConfig  # noqa: E402

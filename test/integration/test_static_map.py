@@ -11,7 +11,7 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from ros_harness import TYPES, BASE_STAMP, cloud, running_harness  # noqa: E402
+from ros_harness import BASE_STAMP, TYPES, cloud, running_harness  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
 from ros2_mos.apps.mapping import VoxelMap, VoxelMapConfig  # noqa: E402

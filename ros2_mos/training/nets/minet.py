@@ -60,7 +60,9 @@ def _resize(x: torch.Tensor, size: torch.Size) -> torch.Tensor:
 class MultiScaleModule(nn.Module):
     """Three paths at 1/2, 1/4, 1/8 with an interaction step half-way, fused at 1/2."""
 
-    def __init__(self, in_ch: int, widths: tuple[int, int, int] = (32, 64, 128), depths: tuple[int, int, int] = (2, 4, 6)) -> None:
+    def __init__(
+        self, in_ch: int, widths: tuple[int, int, int] = (32, 64, 128), depths: tuple[int, int, int] = (2, 4, 6)
+    ) -> None:
         super().__init__()
         self.entry = nn.ModuleList(ConvBNReLU(in_ch, w, 1) for w in widths)
         self.first = nn.ModuleList(

@@ -63,7 +63,10 @@ class Backbone(nn.Module):
     @staticmethod
     def _make_enc_layer(planes: list[int], blocks: int, stride: int, bn_d: float) -> nn.Sequential:
         layers: list[tuple[str, nn.Module]] = [
-            ("conv", nn.Conv2d(planes[0], planes[1], kernel_size=3, stride=[1, stride], dilation=1, padding=1, bias=False)),
+            (
+                "conv",
+                nn.Conv2d(planes[0], planes[1], kernel_size=3, stride=[1, stride], dilation=1, padding=1, bias=False),
+            ),
             ("bn", nn.BatchNorm2d(planes[1], momentum=bn_d)),
             ("relu", nn.LeakyReLU(0.1)),
         ]
@@ -100,7 +103,10 @@ class Decoder(nn.Module):
         return nn.Sequential(
             OrderedDict(
                 [
-                    ("upconv", nn.ConvTranspose2d(planes[0], planes[1], kernel_size=[1, 4], stride=[1, 2], padding=[0, 1])),
+                    (
+                        "upconv",
+                        nn.ConvTranspose2d(planes[0], planes[1], kernel_size=[1, 4], stride=[1, 2], padding=[0, 1]),
+                    ),
                     ("bn", nn.BatchNorm2d(planes[1], momentum=bn_d)),
                     ("relu", nn.LeakyReLU(0.1)),
                     ("residual", BasicBlock(planes[1], planes, bn_d)),
