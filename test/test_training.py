@@ -18,7 +18,15 @@ from ros2_mos.features import InputSetup  # noqa: E402
 from ros2_mos.labels import IGNORE  # noqa: E402
 from ros2_mos.projection import project  # noqa: E402
 from ros2_mos.residuals import residual_images  # noqa: E402
-from ros2_mos.training.dataset import AugmentConfig, CacheSpec, MosDataset, SequenceCache, as_range_image, flip_y, rotate_columns  # noqa: E402
+from ros2_mos.training.dataset import (  # noqa: E402
+    AugmentConfig,
+    CacheSpec,
+    MosDataset,
+    SequenceCache,
+    as_range_image,
+    flip_y,
+    rotate_columns,
+)
 from ros2_mos.training.losses import MosLoss, inverse_frequency_weights, lovasz_softmax  # noqa: E402
 from ros2_mos.training.trainer import TrainConfig, Trainer, export_checkpoint, load_checkpoint  # noqa: E402
 
@@ -267,9 +275,37 @@ def test_baselines_find_the_moving_box(data_root, tmp_path):
     spec = CacheSpec(sensor=TEST_SENSOR, n_residual=2, n_frames=0, with_points=True)
     cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=1)
     thr = evaluate_point_iou([cache], lambda c, i: ResidualThreshold(0.2).predict(c, i).astype(np.float32))
-    rg = evaluate_point_iou([cache], lambda c, i: ResidualRegionGrowing(0.1, 0.05, 0.1).predict(c, i).astype(np.float32))
+    rg = evaluate_point_iou([cache],
+                            lambda c, i: ResidualRegionGrowing(0.1, 0.05, 0.1).predict(c, i).astype(np.float32))
     assert thr.tp > 0 and rg.tp > 0
     assert rg.iou > 0.2
+
+
+def test_fine_tuning_starts_from_the_checkpoints_weights_and_normalisation(data_root, tmp_path):
+    first = Trainer(_config(data_root, tmp_path / "a", epochs=1), data_root, show_progress=False)
+    first.fit()
+    base = load_checkpoint(tmp_path / "a" / "run" / "last.pt")
+    cfg = _config(data_root, tmp_path / "b", epochs=1, lr=1e-3, train_sequences=["01"], valid_sequences=[],
+                  init_from=str(tmp_path / "a" / "run" / "last.pt"))
+    tuned = Trainer(cfg, data_root, show_progress=False)
+    assert tuned.start_epoch == 0  # a new schedule, not a resume
+    assert (tuned.means, tuned.stds) == (tuple(base["means"]), tuple(base["stds"]))  # not refitted on "01"
+    for k, v in tuned.model.state_dict().items():
+        assert torch.equal(v, base["model"][k])
+    tuned.fit()
+    assert load_checkpoint(tmp_path / "b" / "run" / "last.pt")["means"] == base["means"]
+    # Once the run has its own last.pt, it resumes from that, not from init_from.
+    again = Trainer(_config(data_root, tmp_path / "b", epochs=2, train_sequences=["01"], valid_sequences=[],
+                            init_from=str(tmp_path / "a" / "run" / "last.pt")), data_root, show_progress=False)
+    assert again.start_epoch == 1
+    # Another network or input is refused; so is a file that is not a checkpoint.
+    with pytest.raises(ConfigError, match="init_from"):
+        Trainer(_config(data_root, tmp_path / "c", n_past=3, init_from=str(tmp_path / "a" / "run" / "last.pt")),
+                data_root, show_progress=False)
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes((tmp_path / "a" / "run" / "last.pt").read_bytes()[:5000])
+    with pytest.raises(ConfigError, match="not a readable checkpoint"):
+        Trainer(_config(data_root, tmp_path / "d", init_from=str(truncated)), data_root, show_progress=False)
 
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[1] / "configs").glob("*.yaml")),

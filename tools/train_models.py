@@ -30,12 +30,12 @@ import yaml
 PRESET_OF_PREFIX = {"b": "benchmark", "t": "traffic_jam", "e": "easy"}
 
 
-def _simulate(job: tuple[str, str, int, int]) -> str:
+def _simulate(job: tuple[str, str, int, int, bool]) -> str:
     from ros2_mos.sim import sim_preset, simulate_sequence
     from ros2_mos.sim.presets import randomized_for_sequence
 
-    root, name, scans, seed = job
-    preset = randomized_for_sequence(sim_preset(PRESET_OF_PREFIX[name[0]]), seed, name)
+    root, name, scans, seed, large_trees = job
+    preset = randomized_for_sequence(sim_preset(PRESET_OF_PREFIX[name[0]]), seed, name, large_trees)
     simulate_sequence(root, name, scans, preset, seed)
     return name
 
@@ -73,7 +73,8 @@ def main() -> int:
     start = time.monotonic()
     todo = [n for n in names if not (Path(args.data) / "sequences" / n / "poses.txt").is_file()]
     with mp.get_context("spawn").Pool(max(1, args.jobs)) as pool:
-        for name in pool.imap_unordered(_simulate, [(args.data, n, args.scans, args.seed) for n in todo]):
+        jobs = [(args.data, n, args.scans, args.seed, bool(base.get("sim_large_trees", True))) for n in todo]
+        for name in pool.imap_unordered(_simulate, jobs):
             pass
     print(f"simulated {len(todo)} of {len(names)} sequences x {args.scans} scans in {time.monotonic() - start:.0f} s",
           flush=True)

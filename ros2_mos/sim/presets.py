@@ -106,6 +106,10 @@ class SceneConfig:
     empty_lot_prob: float = 0.15
     tree_spacing: Range = (8.0, 18.0)
     tree_prob: float = 0.6
+    # Tree size: trunk height and crown radii are scaled by a draw from this range (per tree), and a
+    # crown is this many overlapping octahedra (1: one smooth crown; more: a lumpy canopy, as real trees).
+    tree_scale: Range = (1.0, 1.0)
+    crown_blobs: int = 1
     pole_spacing: Range = (22.0, 40.0)
     bush_prob: float = 0.3
     parked_prob: float = 0.5
@@ -113,13 +117,17 @@ class SceneConfig:
     ground_rms: float = 0.12
 
     def __post_init__(self) -> None:
-        for name in ("building_width", "building_depth", "building_height", "setback", "tree_spacing", "pole_spacing"):
+        for name in ("building_width", "building_depth", "building_height", "setback", "tree_spacing", "pole_spacing",
+                     "tree_scale"):
             _check_range(name, getattr(self, name))
         for name in ("empty_lot_prob", "tree_prob", "bush_prob", "parked_prob"):
             _check_prob(name, getattr(self, name))
         if self.ground_rms < 0:
             raise ConfigError(f"ground_rms must be >= 0, got {self.ground_rms}")
-        if self.building_width[0] <= 0 or self.tree_spacing[0] <= 0 or self.pole_spacing[0] <= 0:
+        if not 1 <= self.crown_blobs <= 8:
+            raise ConfigError(f"crown_blobs must be 1..8, got {self.crown_blobs}")
+        if (self.building_width[0] <= 0 or self.tree_spacing[0] <= 0 or self.pole_spacing[0] <= 0
+                or self.tree_scale[0] <= 0):
             raise ConfigError("building widths and tree/pole spacings must be positive")
 
 
@@ -294,19 +302,20 @@ def with_effects(preset: SimPreset, **changes: object) -> SimPreset:
     return replace(preset, effects=replace(preset.effects, **changes))
 
 
-def randomized_for_sequence(preset: SimPreset, seed: int, name: str) -> SimPreset:
+def randomized_for_sequence(preset: SimPreset, seed: int, name: str, large_trees: bool = True) -> SimPreset:
     """:func:`randomized` with the generator seeded by the simulation seed and the sequence name."""
-    return randomized(preset, np.random.default_rng([int(seed), zlib.crc32(name.encode()), 7]))
+    return randomized(preset, np.random.default_rng([int(seed), zlib.crc32(name.encode()), 7]), large_trees)
 
 
-def randomized(preset: SimPreset, rng: np.random.Generator) -> SimPreset:
+def randomized(preset: SimPreset, rng: np.random.Generator, large_trees: bool = True) -> SimPreset:
     """A copy of ``preset`` with the sensor's imperfections and the car's mounting drawn at random.
 
     For training data (domain randomisation): real sensors differ in noise, dropout and
     skew, so a network should not learn one simulated sensor's exact statistics.  The
     ranges bracket the presets' own values; about half of the sequences are skewed
     (each column cast from the pose at its firing time), as unprocessed driver output is,
-    foliage is porous (its ranges flicker from scan to scan, as real trees' do), and object edges
+    trees are larger, denser and lumpier (``large_trees``), foliage is porous (its ranges flicker from
+    scan to scan, as real trees' do), and object edges
     return mixed ranges between foreground and background.
     """
     u = rng.uniform
@@ -324,4 +333,9 @@ def randomized(preset: SimPreset, rng: np.random.Generator) -> SimPreset:
         edge_mixing=float(u(0.1, 0.6)),
     )
     ego = replace(preset.ego, body_vibration_deg=float(u(0.02, 0.3)))
-    return replace(preset, effects=effects, ego=ego)
+    if not large_trees:  # the training data of round 3 (benchmarks/experiments.md, rows 1-5)
+        return replace(preset, effects=effects, ego=ego)
+    # Real streets' trees are larger and lumpier than the presets' (their crowns fill the upper beams).
+    scene = replace(preset.scene, tree_prob=float(u(0.5, 0.95)), tree_scale=(1.0, float(u(1.3, 2.5))),
+                    crown_blobs=int(rng.integers(1, 6)))
+    return replace(preset, effects=effects, ego=ego, scene=scene)

@@ -177,13 +177,7 @@ class _Builder:
         if len(tree_u):
             xy = start + np.outer(tree_u, direction) + inward * 0.6
             for x, y in xy:  # a handful per side; each tree has its own size
-                trunk_h = rng.uniform(2.0, 3.5)
-                z = float(self.terrain.height(x, y)) + ch
-                self.add(place(prism(rng.uniform(0.12, 0.2), -0.2, trunk_h), x, y, rng.uniform(0, np.pi), z),
-                         ob.TRUNK, rng.uniform(0.3, 0.45))
-                rz = rng.uniform(1.2, 2.5)
-                crown = octahedron(rng.uniform(1.5, 3.0), rz, trunk_h + 0.7 * rz)
-                self.add(place(crown, x, y, rng.uniform(0, np.pi), z), ob.VEGETATION, rng.uniform(0.4, 0.65))
+                self._tree(x, y, float(self.terrain.height(x, y)) + ch)
         pole_u = _along(rng, length, sc.pole_spacing, _CORNER_CLEARANCE)
         if len(pole_u):
             xy = start + np.outer(pole_u, direction) + inward * 0.3
@@ -193,6 +187,23 @@ class _Builder:
                                    for (x, y), h, z in zip(xy, heights, base)])
             self.add(tris, ob.POLE, rng.uniform(0.4, 0.6))
         self._parking(start, direction, length, -inward)
+
+    def _tree(self, x: float, y: float, z: float) -> None:
+        """A trunk and a crown of ``crown_blobs`` octahedra, scaled by a draw from ``tree_scale``."""
+        sc, rng = self.scene, self.rng
+        # The default (one blob, scale 1) draws exactly what it always drew, so the presets' scenes are unchanged.
+        scale = 1.0 if sc.tree_scale == (1.0, 1.0) else float(rng.uniform(*sc.tree_scale))
+        trunk_h = rng.uniform(2.0, 3.5) * scale
+        self.add(place(prism(rng.uniform(0.12, 0.2) * min(scale, 2.0), -0.2, trunk_h), x, y, rng.uniform(0, np.pi), z),
+                 ob.TRUNK, rng.uniform(0.3, 0.45))
+        rz = rng.uniform(1.2, 2.5) * scale
+        rxy = rng.uniform(1.5, 3.0) * scale
+        crowns = [octahedron(rxy, rz, trunk_h + 0.7 * rz)]
+        for _ in range(sc.crown_blobs - 1):  # lumps around the main crown
+            dx, dy, dz = rng.uniform(-0.6, 0.6, 3) * (rxy, rxy, rz)
+            lump = octahedron(rxy * rng.uniform(0.4, 0.8), rz * rng.uniform(0.4, 0.8), trunk_h + 0.7 * rz + dz)
+            crowns.append(lump + np.array([dx, dy, 0.0]))
+        self.add(place(np.concatenate(crowns), x, y, rng.uniform(0, np.pi), z), ob.VEGETATION, rng.uniform(0.4, 0.65))
 
     def _parking(self, start: np.ndarray, direction: np.ndarray, length: float, outward: np.ndarray) -> None:
         st, rng = self.street, self.rng

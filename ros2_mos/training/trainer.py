@@ -67,7 +67,8 @@ class TrainConfig:
     sensor: str | dict[str, Any] = "hdl64"
     residual_min_range: float = 2.0
     residual_max_range: float = 50.0
-    train_sequences: list[str] = field(default_factory=lambda: ["00", "01", "02", "03", "04", "05", "06", "07", "09", "10"])
+    train_sequences: list[str] = field(
+        default_factory=lambda: ["00", "01", "02", "03", "04", "05", "06", "07", "09", "10"])
     valid_sequences: list[str] = field(default_factory=lambda: ["08"])
     poses: str = "dataset"
     cache_dir: str = "data/cache"
@@ -97,6 +98,11 @@ class TrainConfig:
     seed: int = 0
     max_minutes: float | None = None
     fit_statistics: bool = True
+    # Fine-tuning: start from this checkpoint's weights and normalisation (same network and input; a new
+    # schedule from epoch 0). Ignored once out_dir/last.pt exists (the run then resumes as usual).
+    init_from: str | None = None
+    # Read by tools/train_models.py when it simulates the sequences (randomised large, lumpy trees); not by training.
+    sim_large_trees: bool = True
 
     def __post_init__(self) -> None:
         if self.optimizer not in ("sgd", "adamw"):
@@ -104,7 +110,8 @@ class TrainConfig:
         if self.epochs < 1 or self.batch_size < 1:
             raise ConfigError("epochs and batch_size must be >= 1")
         for name in ("lr", "lr_decay", "momentum", "weight_decay", "warmup_epochs", "lovasz_weight", "weight_eps",
-                     "flip_y", "drop_max", "max_class_weight", "max_minutes", "residual_min_range", "residual_max_range"):
+                     "flip_y", "drop_max", "max_class_weight", "max_minutes", "residual_min_range",
+                     "residual_max_range"):
             value = getattr(self, name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
                                       or not math.isfinite(value)):
@@ -123,6 +130,8 @@ class TrainConfig:
             raise ConfigError(f"crop_width must be >= 16, got {self.crop_width}")
         if not 0 <= self.residual_min_range < self.residual_max_range:
             raise ConfigError("need 0 <= residual_min_range < residual_max_range")
+        if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
+            raise ConfigError(f"init_from must be a checkpoint path, got {self.init_from!r}")
         self.setup  # validates kind / n_past / offsets / channels
         self.sensor_config  # validates the sensor
         self.cache_spec  # validates pose_noise
@@ -146,7 +155,8 @@ class TrainConfig:
             n_residual=max(self.cache_n_residual, self.setup.history if self.input_kind == "residual" else 0),
             n_frames=max(self.cache_n_frames, self.n_past if self.input_kind == "frames" else 0),
             poses=self.poses,
-            pose_noise=(float(self.pose_noise[0]), float(self.pose_noise[1])) if len(self.pose_noise) == 2 else (-1.0, -1.0),
+            pose_noise=((float(self.pose_noise[0]), float(self.pose_noise[1])) if len(self.pose_noise) == 2
+                        else (-1.0, -1.0)),
         )
 
     @classmethod
@@ -288,6 +298,7 @@ class Trainer:
         if not self.dist.main:
             self.train_caches = build_caches(train_dirs, config.cache_dir, spec, 1)
             self.valid_caches = build_caches(valid_dirs, config.cache_dir, spec, 1)
+        self._init_state = self._load_init() if not (self.out_dir / "last.pt").is_file() else None
         self.means, self.stds = self._statistics()
         counts = class_counts(self.train_caches)
         if counts[1] == 0:
@@ -299,7 +310,8 @@ class Trainer:
         self.class_weights = weights
         setup = config.setup
         augment = AugmentConfig(config.rotate, config.flip_y, config.drop_max, config.crop_width)
-        self.train_set = MosDataset(self.train_caches, setup, self.means, self.stds, augment, config.train_stride, config.seed)
+        self.train_set = MosDataset(self.train_caches, setup, self.means, self.stds, augment, config.train_stride,
+                                    config.seed)
         self.valid_set = MosDataset(self.valid_caches, setup, self.means, self.stds, None, config.valid_stride)
         if len(self.train_set) == 0:
             raise DatasetError("no training scans")
@@ -315,9 +327,25 @@ class Trainer:
         self.start_epoch = 0
         self.best_iou = -1.0
         self.history: list[EpochResult] = []
+        if self._init_state is not None:
+            self._raw_model().load_state_dict(self._init_state["model"])
+            self.log(f"fine-tuning from {self.config.init_from} (its epoch {int(self._init_state['epoch']) + 1})")
         self._maybe_resume()
 
+    def _load_init(self) -> dict[str, Any] | None:
+        """The ``init_from`` checkpoint, checked against this run's network and input."""
+        if self.config.init_from is None:
+            return None
+        path = Path(self.config.init_from)
+        state = load_checkpoint(path)
+        if state.get("network") != self.config.network or state.get("input") != asdict(self.config.setup):
+            raise ConfigError(f"init_from {path}: trained as {state.get('network')} {state.get('input')}, not "
+                              f"{self.config.network} {asdict(self.config.setup)}")
+        return state
+
     def _statistics(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        if self._init_state is not None:  # the weights expect their own normalisation
+            return tuple(self._init_state["means"]), tuple(self._init_state["stds"])
         if self.config.fit_statistics:
             return channel_statistics(self.train_caches)
         from ros2_mos.features import DEFAULT_MEANS, DEFAULT_STDS
@@ -360,7 +388,7 @@ class Trainer:
         last = self.out_dir / "last.pt"
         if not last.is_file():
             return
-        state = torch.load(last, map_location=self.dist.device, weights_only=False)
+        state = load_checkpoint(last)
         if state.get("network") != self.config.network or state.get("input") != asdict(self.config.setup):
             raise ConfigError(
                 f"{last} was trained as {state.get('network')} {state.get('input')}, not "
@@ -467,7 +495,8 @@ class Trainer:
         if bar is not None:
             bar.close()
         mean = sums / max(count, 1)
-        return EpochResult(epoch + 1, float(mean[0]), float(mean[1]), float(mean[2]), lr, float("nan"), float("nan"), 0.0)
+        return EpochResult(epoch + 1, float(mean[0]), float(mean[1]), float(mean[2]), lr, float("nan"), float("nan"),
+                           0.0)
 
     def _write_csv(self, result: EpochResult) -> None:
         path = self.out_dir / "metrics.csv"
@@ -486,7 +515,11 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"checkpoint not found: {path}")
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # truncated zip, zeroed or random bytes: torch raises many types
+        first_line = (str(exc).splitlines() or [""])[0][:120]
+        raise ConfigError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {first_line})") from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise ConfigError(f"{path} is not a ros2_mos training checkpoint")
     return state
