@@ -111,18 +111,35 @@ def test_stats_snapshot_and_summary():
     now = [0.0]
     s = NodeStats(window=10, clock=lambda: now[0])
     for i in range(5):
-        now[0] = i * 0.1
-        s.on_received()
+        now[0] = 7.0 + i * 0.3  # the node's clock: slower than the input (a replay at a third of the speed)
+        s.on_received(1000.0 + i * 0.1)  # the clouds' stamps: 10 Hz
         s.on_processed({"total": 50.0 + i, "decode": 1.0}, latency_ms=60.0, degraded=i == 0)
     s.on_dropped()
     s.on_skipped("too_few_points", "only 3 points")
     snap = s.snapshot()
     assert snap.processed == 5 and snap.dropped == 1 and snap.degraded == 1 and snap.skipped_total == 1
-    assert abs(snap.rate_hz - 10.0) < 1e-6
+    # 5 processed over 0.5 s of input time (4 periods + one for the last scan): 10 per second of input time.
+    assert abs(snap.rate_hz - 10.0) < 1e-6 and abs(snap.input_hz - 10.0) < 1e-6
+    assert abs(snap.capacity_hz - 1000.0 / 52.0) < 1e-6  # mean total 52 ms
     assert snap.stage_ms["total"] == (52.0, 54.0)
-    assert "10.0 Hz" in summary_line(snap)
+    line = summary_line(snap)
+    assert "5/5 scans processed (10.0 per s of input time, input 10.0 Hz, node capacity 19.2 Hz)" in line
+    assert "lost: 1 in the node's queue, ~0 on the way in" in line
     now[0] = 100.0
-    assert s.snapshot().rate_hz == 0.0
+    assert s.snapshot().rate_hz == snap.rate_hz  # after the input stops the rate stays what it was
+
+
+def test_stats_count_clouds_lost_on_the_way_and_restart_input_time():
+    s = NodeStats(window=10)
+    for i in [0, 1, 2, 3, 6, 7, 8, 12]:  # 4, 5 and 9, 10, 11 never arrived
+        s.on_received(50.0 + i * 0.1)
+    snap = s.snapshot()
+    assert snap.lost_in_transport == 5 and snap.received == 8
+    assert abs(snap.input_hz - 8 / 1.3) < 1e-6  # 1.2 s from first to last stamp + one period
+    s.on_received(10.0)  # time went back: a replay restarted; its input time adds up
+    s.on_received(10.1)
+    assert abs(s.snapshot().input_hz - 10 / 1.5) < 1e-6
+    assert s.snapshot().lost_in_transport == 5
 
 
 def test_processor_outputs_and_skips(tiny_model_path):

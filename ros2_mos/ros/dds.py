@@ -3,14 +3,16 @@
 Measured with the bench's node runs on 2 cores: the profile's 32 MB shared-memory segment
 cut the transport part of the stamp -> /mos/labels latency from ~30-60 ms to ~7-17 ms (two
 hops of a 2 MB cloud).  DDS reads the profile when a process creates its participant, so it
-has to be in the environment of every process before ``rclpy.init``;
-``python3 -m ros2_mos.ros.dds`` prints its path for ``export FASTRTPS_DEFAULT_PROFILES_FILE=...``.
+has to be in the environment of a process before ``rclpy.init``: ``mos_node`` sets it for itself
+when the user set no profile (so that subscribers in other processes with default settings get
+its full-size clouds); ``python3 -m ros2_mos.ros.dds`` prints its path for
+``export FASTRTPS_DEFAULT_PROFILES_FILE=...`` in the driver's and other processes.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import MutableMapping
+from collections.abc import Mapping, MutableMapping
 from importlib import resources
 from pathlib import Path
 
@@ -35,6 +37,18 @@ def use_large_message_profile(environ: MutableMapping[str, str] = os.environ) ->
     for variable in PROFILE_VARIABLES:
         environ[variable] = str(profile_path())
     return True
+
+
+def transport_summary(environ: Mapping[str, str], set_here: bool) -> str:
+    """One line for the start-up log: which middleware and DDS profile this process uses, and who chose it."""
+    rmw = environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    if rmw != "rmw_fastrtps_cpp":
+        return f"transport: {rmw} with its own settings (ros2_mos sets no profile for it)"
+    chosen = next((environ[v] for v in PROFILE_VARIABLES if environ.get(v)), "")
+    if set_here:
+        return (f"transport: Fast DDS with ros2_mos's large-message profile (32 MB shared memory + UDP), "
+                f"set because no profile was given: {chosen}")
+    return f"transport: Fast DDS with the user's profile {chosen} (kept as given)"
 
 
 if __name__ == "__main__":

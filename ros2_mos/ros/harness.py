@@ -87,16 +87,26 @@ class ReplayReport:
     latency_ms: list[float]  # stamp -> /mos/labels received, per scan (only with restamp)
     diagnostics: dict[str, str] = field(default_factory=dict)
     diagnostics_line: str = ""
+    input_s: float = 0.0  # input time the replayed clouds span (their stamps, one period added)
+    warmup: int = 0  # clouds sent before, in lock-step, not counted
 
     @property
-    def output_hz(self) -> float:
-        return len(self.labels) / self.elapsed_s if self.elapsed_s > 0 else 0.0
+    def processed_per_input_s(self) -> float:
+        """Labelled scans per second of input time (10 at a 10 Hz sensor when nothing is lost)."""
+        return len(self.labels) / self.input_s if self.input_s > 0 else 0.0
 
 
 def replay_through_node(
-    bag: Path, rate: float, restamp: bool = False, subscriber_timeout: float = 30.0
+    bag: Path, rate: float, restamp: bool = False, subscriber_timeout: float = 30.0, warmup: int = 0,
+    reset_gap_s: float = 1.5,
 ) -> ReplayReport:
-    """Replay ``bag`` to a running node (rate 0 = lock-step) and collect its /mos/labels."""
+    """Replay ``bag`` to a running node (rate 0 = lock-step) and collect its /mos/labels.
+
+    ``warmup`` > 0 first sends that many of the bag's clouds in lock-step (the node's first scans
+    pay for lazy initialisation: memory, caches, the runtime's first runs), then pauses
+    ``reset_gap_s`` so that the node starts the measured replay with a fresh buffer
+    (its ``reset_after_gap``); those clouds are not counted.
+    """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -126,11 +136,16 @@ def replay_through_node(
         executor.add_node(listener)
         spin.start()
         topic = pointcloud_topic(bag, None)
-        replayer = Replayer(topic, reliable=True, sync_topic="/mos/labels" if rate == 0 else None)
+        replayer = Replayer(topic, reliable=True, sync_topic="/mos/labels" if rate == 0 or warmup else None)
         if not replayer.wait_for_subscriber(subscriber_timeout):
             raise RuntimeError(f"mos_node did not subscribe to {topic} within {subscriber_timeout:.0f} s")
+        if warmup:
+            replayer.play(bag, topic, rate=0, max_messages=warmup, restamp=True, sync=True)
+            time.sleep(reset_gap_s)
+            replayer.published_stamps.clear()
+            received.clear()
         start = time.monotonic()
-        sent = replayer.play(bag, topic, rate=rate, restamp=restamp)
+        sent = replayer.play(bag, topic, rate=rate, restamp=restamp, sync=rate == 0)
         deadline = time.monotonic() + 10.0
         while len(received) < sent and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -138,9 +153,12 @@ def replay_through_node(
         time.sleep(1.5)  # one more diagnostics period
         index = {stamp: i for i, stamp in enumerate(replayer.published_stamps)}
         labels = {index[s]: moving for s, (moving, _) in received.items() if s in index}
-        latency = [(t - s) * 1e-6 for s, (_, t) in received.items()] if restamp else []
+        latency = [(t - s) * 1e-6 for s, (_, t) in received.items() if s in index] if restamp else []
+        stamps = replayer.published_stamps
+        periods = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+        input_s = ((stamps[-1] - stamps[0]) + (periods[len(periods) // 2] if periods else 0)) * 1e-9 if stamps else 0.0
         return ReplayReport(sent, elapsed, labels, latency, dict(replayer.last_diagnostic_values),
-                            replayer.last_diagnostics)
+                            replayer.last_diagnostics, input_s, warmup)
     finally:
         if replayer is not None:
             replayer.close()

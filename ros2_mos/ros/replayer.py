@@ -58,9 +58,12 @@ class Replayer:
                 values = {kv.key: kv.value for kv in status.values}
                 self.last_diagnostic_values = values
                 stages = ", ".join(f"{k[:-8]} {v}" for k, v in values.items() if k.endswith("_ms_mean"))
-                self.last_diagnostics = (f"{values.get('rate_hz', '?')} Hz, {values.get('processed', '?')} processed, "
-                                         f"{values.get('dropped', '?')} dropped, {values.get('skipped', '?')} skipped;"
-                                         f" ms: {stages}")
+                self.last_diagnostics = (
+                    f"{values.get('processed', '?')} of {values.get('received', '?')} received processed "
+                    f"({values.get('rate_hz', '?')} per s of input time, node capacity {values.get('capacity_hz', '?')}"
+                    f" Hz); lost: {values.get('dropped', '?')} in the node's queue, "
+                    f"~{values.get('lost_in_transport', '?')} on the way in; {values.get('skipped', '?')} skipped;"
+                    f" ms: {stages}")
 
     def wait_for_subscriber(self, timeout: float) -> bool:
         """True once at least one subscription (e.g. mos_node) has matched the publisher."""
@@ -72,12 +75,15 @@ class Replayer:
         return True
 
     def play(self, bag: str | Path, bag_topic: str, *, rate: float = 1.0, loop: bool = False,
-             sync_timeout: float = 5.0, max_messages: int = 0, restamp: bool = False) -> int:
+             sync_timeout: float = 5.0, max_messages: int = 0, restamp: bool = False,
+             sync: bool | None = None) -> int:
         """Publish the clouds of ``bag_topic``; returns how many were published.
 
         ``restamp`` gives each cloud the wall-clock time of its publication, as a live driver
-        would, so that subscribers can measure stamp-to-output latency.
+        would, so that subscribers can measure stamp-to-output latency.  ``sync`` overrides
+        lock-step for this call (it needs the ``sync_topic`` given at construction).
         """
+        lock_step = self._sync if sync is None else (sync and self._sync)
         sent = 0
         while True:
             start_wall: float | None = None
@@ -96,7 +102,7 @@ class Replayer:
                 self.published_stamps.append(m.stamp_ns(cloud.header.stamp))
                 self.publisher.publish(cloud)
                 sent += 1
-                if self._sync:
+                if lock_step:
                     with self._cond:
                         self._cond.wait_for(lambda: self.synced > before, timeout=sync_timeout)
                 if max_messages and sent >= max_messages:

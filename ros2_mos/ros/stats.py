@@ -1,12 +1,25 @@
-"""Running statistics of the node: counts, rate, per-stage timings, latency.
+"""Running statistics of the node: counts, rates, losses, per-stage timings, latency.
 
 Updated by the worker thread, read by the diagnostics timer on the executor
 thread, hence the lock. Timings are kept over a sliding window so the reported
 means and maxima describe the recent past, not the whole run.
+
+Rates mean what they say:
+
+* ``rate_hz``: scans processed per second of *input* time (the clouds' header stamps,
+  first to last received), over the whole run, so it stays true after the input stops
+  and does not depend on how long the node waited before or after;
+* ``input_hz``: clouds received per second of input time;
+* ``capacity_hz``: what the node could sustain, 1000 / mean ms per processed scan.
+
+Losses say where they happened: ``dropped`` clouds were replaced in the node's one-scan
+queue while it was busy; ``lost_in_transport`` is estimated from gaps in the received
+stamps (a gap of k nominal periods is k - 1 clouds that never arrived).
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import Counter, deque
@@ -25,7 +38,10 @@ class Snapshot:
     errors: int
     resets: int
     degraded: int
-    rate_hz: float
+    rate_hz: float  # processed per second of input time
+    input_hz: float  # received per second of input time
+    capacity_hz: float  # 1000 / mean total ms per processed scan (window)
+    lost_in_transport: int  # clouds missing from the received stamps' sequence
     stage_ms: dict[str, tuple[float, float]]  # stage -> (mean, max) over the window
     latency_ms: tuple[float, float]  # (mean, max) receive -> published
     last_warning: str
@@ -56,13 +72,38 @@ class NodeStats:
         self.last_warning = ""
         self._stages: dict[str, deque[float]] = {}
         self._latency: deque[float] = deque(maxlen=window)
-        self._done_times: deque[float] = deque(maxlen=window)
         self._last_received: float | None = None
+        self._first_stamp: float | None = None
+        self._last_stamp: float | None = None
+        self._periods: deque[float] = deque(maxlen=window)
+        self._closed_span = 0.0  # input time of stretches before time last went back
+        self.lost_in_transport = 0
 
-    def on_received(self) -> None:
+    def on_received(self, stamp: float | None = None) -> None:
+        """A cloud arrived; ``stamp`` (its header stamp, s) drives the input-time rates and the loss estimate."""
         with self._lock:
             self.received += 1
             self._last_received = self._clock()
+            if stamp is None or not math.isfinite(stamp):
+                return
+            if self._last_stamp is None or self._first_stamp is None:
+                self._first_stamp = self._last_stamp = stamp
+            elif stamp > self._last_stamp:
+                dt = stamp - self._last_stamp
+                period = self._nominal_period()
+                if period is not None and dt > 1.5 * period:
+                    self.lost_in_transport += max(0, round(dt / period) - 1)
+                else:
+                    self._periods.append(dt)
+                self._last_stamp = stamp
+            elif stamp < self._first_stamp:  # time went back (a replay restarted): a new stretch of input time
+                self._closed_span += self._input_span()
+                self._first_stamp = self._last_stamp = stamp
+
+    def _nominal_period(self) -> float | None:
+        if len(self._periods) < 3:
+            return None
+        return sorted(self._periods)[len(self._periods) // 2]
 
     def on_dropped(self) -> None:
         with self._lock:
@@ -93,29 +134,38 @@ class NodeStats:
             for stage, ms in timings.items():
                 self._stages.setdefault(stage, deque(maxlen=self._window)).append(float(ms))
             self._latency.append(latency_ms)
-            self._done_times.append(self._clock())
 
     def snapshot(self) -> Snapshot:
         with self._lock:
             now = self._clock()
-            times = list(self._done_times)
-            rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] else 0.0
-            if times and now - times[-1] > 5.0:
-                rate = 0.0  # nothing processed lately: do not report a stale rate
+            span = self._closed_span + self._input_span()
+            total = self._stages.get("total")
+            capacity = 1000.0 * len(total) / sum(total) if total and sum(total) > 0 else 0.0
             stages = {k: (sum(v) / len(v), max(v)) for k, v in self._stages.items() if v}
             lat = (sum(self._latency) / len(self._latency), max(self._latency)) if self._latency else (0.0, 0.0)
             return Snapshot(
                 received=self.received, processed=self.processed, dropped=self.dropped,
                 skipped=dict(self.skipped), errors=self.errors, resets=self.resets, degraded=self.degraded,
-                rate_hz=rate, stage_ms=stages, latency_ms=lat, last_warning=self.last_warning,
+                rate_hz=self.processed / span if span else 0.0, input_hz=self.received / span if span else 0.0,
+                capacity_hz=capacity, lost_in_transport=self.lost_in_transport, stage_ms=stages, latency_ms=lat,
+                last_warning=self.last_warning,
                 consecutive_errors=self.consecutive_errors,
                 seconds_since_last_scan=None if self._last_received is None else now - self._last_received,
             )
 
 
+    def _input_span(self) -> float:
+        """Seconds of input time covered by the received clouds (one nominal period per cloud at the ends)."""
+        if self._first_stamp is None or self._last_stamp is None:
+            return 0.0
+        period = self._nominal_period() or 0.1
+        return self._last_stamp - self._first_stamp + period
+
+
 def summary_line(s: Snapshot) -> str:
-    """One log line: rate, counts and the mean ms of the main stages."""
+    """One log line: rates, counts, where scans were lost, and the mean ms of the main stages."""
     stages = ", ".join(f"{k} {v[0]:.1f}" for k, v in s.stage_ms.items())
-    return (f"{s.rate_hz:.1f} Hz, {s.processed}/{s.received} scans processed, {s.dropped} dropped, "
-            f"{s.skipped_total} skipped, {s.errors} errors, {s.resets} resets, {s.degraded} degraded; "
-            f"latency {s.latency_ms[0]:.0f} ms (max {s.latency_ms[1]:.0f}); ms: {stages}")
+    return (f"{s.processed}/{s.received} scans processed ({s.rate_hz:.1f} per s of input time, input "
+            f"{s.input_hz:.1f} Hz, node capacity {s.capacity_hz:.1f} Hz); lost: {s.dropped} in the node's queue, "
+            f"~{s.lost_in_transport} on the way in; {s.skipped_total} skipped, {s.errors} errors, {s.resets} resets, "
+            f"{s.degraded} degraded; latency {s.latency_ms[0]:.0f} ms (max {s.latency_ms[1]:.0f}); ms: {stages}")
