@@ -250,6 +250,36 @@ def test_randomized_presets_vary_by_sequence_and_repeat_by_seed() -> None:
         assert 0.005 <= p.effects.range_sigma <= 0.04 and 0.2 <= p.effects.vegetation_penetration <= 0.8
 
 
+def test_large_trees_are_randomised_and_built_as_lumpy_scaled_crowns() -> None:
+    from ros2_mos.sim.objects import TRUNK, VEGETATION
+    from ros2_mos.sim.presets import SceneConfig, randomized_for_sequence
+    from ros2_mos.sim.scene import _Builder
+
+    base = sim_preset("benchmark")
+    big = randomized_for_sequence(base, 100, "b00")
+    assert 0.5 <= big.scene.tree_prob <= 0.95 and 1 <= big.scene.crown_blobs <= 5
+    assert big.scene.tree_scale[0] == 1.0 and 1.3 <= big.scene.tree_scale[1] <= 2.5
+    old = randomized_for_sequence(base, 100, "b00", large_trees=False)
+    assert old.scene == base.scene and old.effects == big.effects  # round 3's data: the same draws, no trees
+
+    def tree(scene: SceneConfig) -> tuple[np.ndarray, np.ndarray]:
+        builder = _Builder(np.random.default_rng(5), base.street, scene, None, 1)
+        builder._tree(0.0, 0.0, 0.0)
+        trunk, crown = (p.tris for p in builder.parts)
+        assert builder.parts[0].sem[0] == TRUNK and builder.parts[1].sem[0] == VEGETATION
+        return trunk, crown
+
+    trunk, crown = tree(SceneConfig())
+    assert len(crown) == 8  # one octahedron, as the presets have always drawn it
+    assert 2.0 <= trunk[..., 2].max() <= 3.5
+    trunk, crown = tree(SceneConfig(tree_scale=(2.0, 2.0), crown_blobs=4))
+    assert len(crown) == 32 and 4.0 <= trunk[..., 2].max() <= 7.0  # four lumps, twice the height
+    with pytest.raises(ConfigError):
+        SceneConfig(crown_blobs=0)
+    with pytest.raises(ConfigError):
+        SceneConfig(tree_scale=(0.0, 1.0))
+
+
 def test_bad_arguments_raise_typed_errors(tmp_path: Path) -> None:
     with pytest.raises(ConfigError):
         SequenceSimulator(0, "easy")
