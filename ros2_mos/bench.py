@@ -66,14 +66,14 @@ def peak_rss_mb() -> float:
 
 
 def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, threads: int,
-                    geometry: str = "numpy") -> BenchResult:
+                    geometry: str = "numpy", sensor: str | None = None) -> BenchResult:
     from ros2_mos.datasets.bags import iter_pointclouds
     from ros2_mos.pipeline import MosPipeline
     from ros2_mos.ros.messages import MessageTypes
     from ros2_mos.ros.params import defaults, mos_config, node_settings, replace_model
     from ros2_mos.ros.processor import ScanProcessor
 
-    values = replace_model(defaults(), model)
+    values = replace_model(defaults(), model, sensor)
     values["intra_op_threads"] = threads
     values["geometry_backend"] = geometry
     pipeline = MosPipeline(mos_config(values))
@@ -95,12 +95,12 @@ def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, thread
 
 
 def bench_pipeline(bag: Path, model: Path | None, scans: int = 50, warmup: int = 5, threads: int = 0,
-                   geometry: str = "numpy") -> BenchResult:
+                   geometry: str = "numpy", sensor: str | None = None) -> BenchResult:
     """Time the node's pipeline over the bag's first clouds, in a fresh process."""
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
         return pool.submit(_bench_pipeline, str(bag), None if model is None else str(model), scans, warmup,
-                           threads, geometry).result()
+                           threads, geometry, sensor).result()
 
 
 def format_table(results: list[BenchResult]) -> str:

@@ -16,7 +16,6 @@ import numpy as np
 
 from ros2_mos.errors import ConfigError
 
-
 #: Ranges above this are no LiDAR's (and break KISS-ICP's voxel hashing: inf or 1e300 aborts it).
 MAX_RANGE_LIMIT = 1000.0
 
@@ -57,10 +56,12 @@ class SensorConfig:
         if self.max_range > MAX_RANGE_LIMIT:
             raise ConfigError(f"sensor {self.name!r}: max_range must be <= {MAX_RANGE_LIMIT:g} m, got {self.max_range}")
         if self.height <= 0 or self.width <= 0:
-            raise ConfigError(f"sensor {self.name!r}: height and width must be positive, got {self.height} x {self.width}")
+            raise ConfigError(f"sensor {self.name!r}: height and width must be positive, "
+                              f"got {self.height} x {self.width}")
         if not self.fov_up_deg > self.fov_down_deg:
             raise ConfigError(
-                f"sensor {self.name!r}: fov_up_deg ({self.fov_up_deg}) must be greater than fov_down_deg ({self.fov_down_deg})"
+                f"sensor {self.name!r}: fov_up_deg ({self.fov_up_deg}) must be greater than "
+                f"fov_down_deg ({self.fov_down_deg})"
             )
         if not (0.0 <= self.min_range < self.max_range):
             raise ConfigError(
@@ -161,6 +162,10 @@ class PostprocessConfig:
     # Segment consistency (ros2_mos.segments.fill_segments): a connected non-ground segment of the
     # range image of which at least this share is moving is labelled moving as a whole; 0 = off.
     segment_fill: float = 0.0
+    # Connected moving range-image regions smaller than this many pixels of a 64 x 2048 image (scaled
+    # with the image size for other sensors) are labelled static (ros2_mos.segments.drop_small_regions):
+    # speckle on foliage and depth edges; 0 = off.
+    min_region_pixels: int = 30
 
     def __post_init__(self) -> None:
         if self.mode not in ("knn", "nearest"):
@@ -168,6 +173,10 @@ class PostprocessConfig:
         check_finite("postprocess", sigma=self.sigma, cutoff=self.cutoff, segment_fill=self.segment_fill)
         if not 0.0 <= self.segment_fill <= 1.0:
             raise ConfigError(f"postprocess segment_fill must be in [0, 1] (0 = off), got {self.segment_fill}")
+        if isinstance(self.min_region_pixels, bool) or not isinstance(self.min_region_pixels, int) \
+                or not 0 <= self.min_region_pixels <= 10000:
+            raise ConfigError(f"postprocess min_region_pixels must be an integer in [0, 10000] (0 = off), "
+                              f"got {self.min_region_pixels!r}")
         if self.window < 1 or self.window % 2 == 0:
             raise ConfigError(f"postprocess window must be a positive odd number, got {self.window}")
         if not 1 <= self.k <= self.window * self.window:

@@ -23,9 +23,25 @@ OUTPUT_NAME = "probability"
 PROVIDER_PREFERENCE = ("TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider")
 
 
-def default_model_path() -> Path:
-    """The model shipped inside the package (found through package resources, not the checkout)."""
-    return Path(str(resources.files("ros2_mos") / "models" / DEFAULT_MODEL_NAME))
+def default_model_path(sensor: str | None = None) -> Path:
+    """The model shipped inside the package for ``sensor`` (a preset name; found through package resources).
+
+    ``models/<sensor>.onnx`` where one ships (``vlp16``, ``vlp32c``, ``os1-64``, ``os1-128``), else
+    ``default.onnx`` (the HDL-64E's): a sensor without its own model gets a clear error from the
+    pipeline, which compares the sensor with the one the model was trained for.
+    """
+    models = Path(str(resources.files("ros2_mos") / "models"))
+    if sensor and (models / f"{sensor}.onnx").is_file():
+        return models / f"{sensor}.onnx"
+    return models / DEFAULT_MODEL_NAME
+
+
+def shipped_models() -> dict[str, Path]:
+    """Sensor name -> the model shipped for it (``hdl64`` -> ``default.onnx``)."""
+    models = Path(str(resources.files("ros2_mos") / "models"))
+    out = {"hdl64": models / DEFAULT_MODEL_NAME}
+    out.update({p.stem: p for p in sorted(models.glob("*.onnx")) if p.name != DEFAULT_MODEL_NAME})
+    return out
 
 
 def read_metadata(path: str | Path) -> ModelMetadata:

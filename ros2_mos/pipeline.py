@@ -18,18 +18,21 @@ import numpy as np
 from ros2_mos.config import MosConfig, SensorConfig
 from ros2_mos.errors import ConfigError, ScanError
 from ros2_mos.features import assemble_input
-from ros2_mos.inference import MosModel
-from ros2_mos.metadata import check_threshold
+from ros2_mos.inference import MosModel, default_model_path, shipped_models
 from ros2_mos.memory import retain_freed_memory
+from ros2_mos.metadata import check_threshold
 from ros2_mos.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
 from ros2_mos.postprocess import backproject
 from ros2_mos.projection import RangeImage, check_points, finite_mask, project
 from ros2_mos.residuals import relative_pose, residual_images, transform_points
-from ros2_mos.segments import fill_segments
+from ros2_mos.segments import drop_small_regions, fill_segments
+from ros2_mos.sensor_check import mismatch_message
 
 #: Above this share of points outside the sensor's vertical field of view or range limits, the
 #: cloud does not fit the configured sensor (another beam layout): its labels are flagged degraded.
 MAX_OUTSIDE_FRACTION = 0.5
+#: postprocess.min_region_pixels counts pixels of an image this large (the HDL-64E's 64 x 2048).
+REFERENCE_PIXELS = 64 * 2048
 #: A model that takes remission was trained on 0..1 values; larger intensities (0..255 drivers) are flagged.
 MAX_REMISSION = 1.0 + 1e-3
 
@@ -50,6 +53,9 @@ class MosResult:
     n_past_required: int
     timings: dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
     warnings: list[str] = field(default_factory=list)
+    # Non-empty when the stream's first scan (since start or reset) did not fit the configured sensor
+    # (ros2_mos.sensor_check): every label of the stream is then suspect.
+    sensor_mismatch: str = ""
 
     @property
     def residuals_complete(self) -> bool:
@@ -59,7 +65,7 @@ class MosResult:
     @property
     def degraded(self) -> bool:
         """Labels were computed with less information than the model was trained for."""
-        return not self.residuals_complete or bool(self.warnings)
+        return not self.residuals_complete or bool(self.warnings) or bool(self.sensor_mismatch)
 
 
 class _Stopwatch:
@@ -85,7 +91,10 @@ class MosPipeline:
         self.config = config
         if config.tune_malloc:
             retain_freed_memory()
-        self.model = model if model is not None else MosModel(config.model, intra_op_threads=config.intra_op_threads)
+        if model is None:  # the configured file, else the model shipped for the configured sensor
+            path = config.model or default_model_path(config.sensor.name if config.sensor else None)
+            model = MosModel(path, intra_op_threads=config.intra_op_threads)
+        self.model = model
         meta = self.model.metadata
         self.setup = meta.input
         self.sensor: SensorConfig = config.sensor or meta.sensor
@@ -93,12 +102,15 @@ class MosPipeline:
             raise ConfigError(
                 f"sensor {self.sensor.name} projects to {self.sensor.height} x {self.sensor.width} but the model "
                 f"was trained for {meta.sensor.name} at {meta.sensor.height} x {meta.sensor.width}; "
-                "use a model trained for this sensor"
+                "use a model trained for this sensor (models ship for " + ", ".join(shipped_models()) + ")"
             )
         recommended = check_threshold(meta.extra.get("recommended_threshold", 0.5), f"{self.model.path.name}: "
                                       "recommended_threshold in the model's metadata")
         #: The moving-probability threshold in use: the configured one, or the model's own.
         self.threshold = config.threshold or recommended
+        # The setting counts pixels of a 64 x 2048 image: the same solid angle on other images.
+        scale = self.sensor.height * self.sensor.width / REFERENCE_PIXELS
+        self._min_region_pixels = round(config.postprocess.min_region_pixels * scale)
         self.means = np.asarray(meta.means, np.float32)
         self.stds = np.asarray(meta.stds, np.float32)
         self.odometry = KissIcpOdometry(config.odometry)
@@ -107,6 +119,7 @@ class MosPipeline:
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mos-residuals") if self.n_past > 1 else None
         self._last_stamp: float | None = None
         self._last_pose: np.ndarray | None = None
+        self._sensor_mismatch: str | None = None  # None: not checked yet
         self._torch: Any = None
         if config.geometry_backend == "torch":
             from ros2_mos.torch_ops import TorchGeometry  # the only place the runtime may import torch
@@ -129,6 +142,7 @@ class MosPipeline:
         self.odometry.reset()
         self._last_stamp = None
         self._last_pose = None
+        self._sensor_mismatch = None
 
     def process(
         self, points: np.ndarray, intensity: np.ndarray | None, timestamp: float, pose: np.ndarray | None = None
@@ -167,6 +181,8 @@ class MosPipeline:
         if self._last_stamp is not None and timestamp <= self._last_stamp:
             warnings.append(f"time went backwards ({self._last_stamp:.3f} -> {timestamp:.3f} s): buffer reset")
             self.reset()
+        if self._sensor_mismatch is None:  # the first scan of a stream: is it the configured sensor at all?
+            self._sensor_mismatch = mismatch_message(xyz, self.sensor) or ""
         watch.lap("validate")
 
         if pose is None:
@@ -195,7 +211,8 @@ class MosPipeline:
         outside = 1.0 - float(image.pixels.in_image.mean())
         if outside > MAX_OUTSIDE_FRACTION:
             warnings.append(f"{outside:.0%} of the points fall outside the {self.sensor.name} field of view or range "
-                            "(they take the nearest edge pixel's label): does the sensor configuration match the cloud?")
+                            "(they take the nearest edge pixel's label): does the sensor configuration match the "
+                            "cloud?")
         watch.lap("projection")
 
         past = self.buffer.newest_first()
@@ -212,7 +229,8 @@ class MosPipeline:
             extra = residuals
         else:
             residuals = np.zeros((0, self.sensor.height, self.sensor.width), np.float32)
-            extra = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor) for s in past]
+            extra = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor)
+                     for s in past]
         watch.lap("residuals")
 
         network_input = assemble_input(image, extra, self.setup, self.means, self.stds)
@@ -222,6 +240,8 @@ class MosPipeline:
         np.multiply(prob_image, image.mask, out=prob_image)
         watch.lap("inference")
 
+        if self._min_region_pixels > 1:
+            prob_image = drop_small_regions(prob_image, image.range, self.threshold, self._min_region_pixels)
         if self.config.postprocess.segment_fill > 0:
             prob_image = fill_segments(prob_image, image.range, image.xyz[..., 2], self.threshold,
                                        self.config.postprocess.segment_fill)
@@ -262,4 +282,5 @@ class MosPipeline:
             n_past_required=self.n_past,
             timings=watch.timings,
             warnings=warnings,
+            sensor_mismatch=self._sensor_mismatch or "",
         )

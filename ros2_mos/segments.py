@@ -91,3 +91,25 @@ def fill_segments(prob_image: np.ndarray, range_image: np.ndarray, z_image: np.n
     out = prob_image.copy()
     out[raise_to] = np.maximum(out[raise_to], threshold)
     return out
+
+
+def drop_small_regions(prob_image: np.ndarray, range_image: np.ndarray, threshold: float, min_pixels: int,
+                       rel_jump: float = 0.1, min_jump: float = 0.5) -> np.ndarray:
+    """The probability image with every connected moving region of fewer than ``min_pixels`` pixels set to 0.
+
+    Regions are 4-connected moving pixels (probability >= threshold) whose neighbouring ranges differ by
+    less than ``max(min_jump, rel_jump * range)``: speckle on foliage and at depth edges, not an object.
+    """
+    moving = (prob_image >= threshold) & (range_image > 0)
+    if min_pixels <= 1 or not moving.any():
+        return prob_image
+    regions = connected_regions(moving, range_image, rel_jump, min_jump)
+    labels = regions[moving]
+    size = np.bincount(labels, minlength=regions.size)
+    small = np.zeros(moving.shape, bool)
+    small[moving] = size[labels] < min_pixels
+    if not small.any():
+        return prob_image
+    out = prob_image.copy()
+    out[small] = 0.0
+    return out

@@ -5,7 +5,7 @@ import pytest
 
 from ros2_mos.config import PostprocessConfig
 from ros2_mos.errors import ConfigError
-from ros2_mos.segments import connected_regions, fill_segments
+from ros2_mos.segments import connected_regions, drop_small_regions, fill_segments
 
 
 def scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -48,3 +48,33 @@ def test_segment_fill_is_checked():
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ConfigError):
             PostprocessConfig(segment_fill=bad)
+
+
+def test_small_moving_regions_are_dropped_and_objects_kept():
+    prob, rng, z = scene()
+    prob[2:6, 10:20] = 0.9  # the whole car moving: 40 pixels
+    prob[0, 40:42] = 0.8  # a 2-pixel speck on the wall
+    out = drop_small_regions(prob, rng, threshold=0.5, min_pixels=30)
+    assert (out[2:6, 10:20] == 0.9).all()  # 40 >= 30: kept as it was
+    assert (out[0, 40:42] == 0).all() and out[7, 50] == 0  # the specks (2 and 1 pixels) are gone
+    unchanged = np.ones_like(prob, bool)
+    unchanged[0, 40:42] = unchanged[7, 50] = False
+    np.testing.assert_array_equal(out[unchanged], prob[unchanged])
+    assert drop_small_regions(prob, rng, 0.5, 41)[2:6, 10:20].max() == 0  # 40 < 41: the car goes too
+    assert drop_small_regions(prob, rng, 0.5, 0) is prob  # 0 = off
+
+
+def test_moving_pixels_across_a_range_jump_are_separate_regions():
+    rng = np.full((4, 16), 10.0, np.float32)
+    rng[:, 8:] = 30.0  # two surfaces side by side, 20 m apart
+    prob = np.zeros_like(rng)
+    prob[:, 6:10] = 0.9  # 8 moving pixels on each: one region of 16 without the range test
+    out = drop_small_regions(prob, rng, 0.5, 10)
+    assert out.max() == 0  # each side alone is 8 < 10 pixels
+    assert drop_small_regions(prob, rng, 0.5, 8).max() == np.float32(0.9)
+
+
+def test_min_region_pixels_is_checked():
+    for bad in (-1, 10001, 2.5, float("nan"), True):
+        with pytest.raises(ConfigError):
+            PostprocessConfig(min_region_pixels=bad)

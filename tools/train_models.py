@@ -30,13 +30,13 @@ import yaml
 PRESET_OF_PREFIX = {"b": "benchmark", "t": "traffic_jam", "e": "easy"}
 
 
-def _simulate(job: tuple[str, str, int, int, bool]) -> str:
+def _simulate(job: tuple[str, str, int, int, bool, str]) -> str:
     from ros2_mos.sim import sim_preset, simulate_sequence
     from ros2_mos.sim.presets import randomized_for_sequence
 
-    root, name, scans, seed, large_trees = job
+    root, name, scans, seed, large_trees, sensor = job
     preset = randomized_for_sequence(sim_preset(PRESET_OF_PREFIX[name[0]]), seed, name, large_trees)
-    simulate_sequence(root, name, scans, preset, seed)
+    simulate_sequence(root, name, scans, preset, seed, sensor=sensor)
     return name
 
 
@@ -62,6 +62,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=100)
     parser.add_argument("--jobs", type=int, default=mp.cpu_count())
     parser.add_argument("--pack", help="write the run folders (no caches) into this tar file at the end")
+    parser.add_argument("--simulate-only", action="store_true", help="simulate the sequences, train nothing")
     args = parser.parse_args()
 
     base = yaml.safe_load(Path(args.config).read_text())
@@ -73,11 +74,17 @@ def main() -> int:
     start = time.monotonic()
     todo = [n for n in names if not (Path(args.data) / "sequences" / n / "poses.txt").is_file()]
     with mp.get_context("spawn").Pool(max(1, args.jobs)) as pool:
-        jobs = [(args.data, n, args.scans, args.seed, bool(base.get("sim_large_trees", True))) for n in todo]
+        from ros2_mos.config import SensorConfig
+
+        sensor = base.get("sensor", "hdl64")  # a preset name, or a custom sensor's dict
+        jobs = [(args.data, n, args.scans, args.seed, bool(base.get("sim_large_trees", True)),
+                 sensor if isinstance(sensor, str) else SensorConfig.from_dict(sensor)) for n in todo]
         for name in pool.imap_unordered(_simulate, jobs):
             pass
     print(f"simulated {len(todo)} of {len(names)} sequences x {args.scans} scans in {time.monotonic() - start:.0f} s",
           flush=True)
+    if args.simulate_only:
+        return 0
 
     variants = []
     for text in args.variant or [Path(args.config).stem]:

@@ -16,18 +16,15 @@ BENCH_SEQUENCE = "bench"
 BENCH_SEED = 7
 
 
-def shipped_models() -> list[Path]:
-    from ros2_mos.inference import default_model_path
-
-    return sorted(default_model_path().parent.glob("*.onnx"))
-
-
 @app.command()
 def bench(
     data: Path = typer.Option(Path("data/bench"),
                               help="Where the benchmark sequence and bag are (simulated if missing)"),
     scans: int = typer.Option(50, min=5, help="Scans timed per configuration (after 5 warm-up scans)"),
-    model: Optional[list[Path]] = typer.Option(None, help="ONNX models to time (default: every shipped model)"),
+    model: Optional[list[Path]] = typer.Option(None, help="ONNX models to time (default: the model shipped for "
+                                                          "--sensor)"),
+    sensor: str = typer.Option("hdl64", help="Sensor preset whose simulated drive is timed (hdl64, vlp16, vlp32c, "
+                                             "os1-64, os1-128)"),
     threads: int = typer.Option(0, help="ONNX Runtime intra-op threads (0 = runtime default)"),
     geometry: str = typer.Option("numpy",
                                  help="Residuals + kNN backend: numpy, or torch (GPU path, CUDA when present)"),
@@ -44,19 +41,24 @@ def bench(
     """Median / p95 ms per stage, end-to-end latency, Hz and peak RSS; reference ratio; the node under replay."""
     from ros2_mos.bench import bench_pipeline, format_table
     from ros2_mos.cli.demo_command import ensure_sequence
+    from ros2_mos.config import sensor_preset
+    from ros2_mos.inference import default_model_path
 
-    seq_dir, bag = ensure_sequence(data, BENCH_SEQUENCE, scans + 5, BENCH_SEED)
-    models = list(model) if model else shipped_models()
+    spec = sensor_preset(sensor)
+    seq_dir, bag = ensure_sequence(data, BENCH_SEQUENCE, scans + 5, BENCH_SEED, sensor=spec.name)
+    models = list(model) if model else [default_model_path(spec.name)]
     if untrained:
         models += [_export_untrained(spec, data / "untrained") for spec in untrained]
     lines = [f"# ros2-mos bench, {datetime.date.today().isoformat()}",
              f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, load average "
-             f"{os.getloadavg()[0]:.1f}; {scans} scans of {seq_dir} (64 x 2048 HDL-64, simulated)", ""]
+             f"{os.getloadavg()[0]:.1f}; {scans} scans of {seq_dir} "
+             f"({spec.height} x {spec.width} {spec.name}, simulated)",
+             ""]
     results = []
     for m in models:
         typer.echo(f"timing {m.name} ...")
-        results.append(bench_pipeline(bag, m, scans, threads=threads, geometry=geometry))
-    if reference:
+        results.append(bench_pipeline(bag, m, scans, threads=threads, geometry=geometry, sensor=spec.name))
+    if reference and spec.name == "hdl64":
         typer.echo("timing the LiDAR-MOS-style reference (SalsaNext N=8, PyTorch eager) ...")
         results.append(_bench_reference(seq_dir, reference_scans))
     lines += ["## Pipeline, one scan at a time (the node's code, no DDS)", "", format_table(results), ""]
@@ -69,7 +71,7 @@ def bench(
         lines.append("")
     typer.echo("\n".join(lines))
     if node:
-        node_lines = _bench_node(bag, node_model)
+        node_lines = _bench_node(bag, node_model, spec.name)
         typer.echo("\n".join(node_lines))
         lines += node_lines
     if out is not None:
@@ -126,7 +128,7 @@ def _reference_worker(seq_dir: str, scans: int):
                      "LiDAR-MOS code path on this CPU, dataset poses")
 
 
-def _bench_node(bag: Path, model: Optional[Path]) -> list[str]:
+def _bench_node(bag: Path, model: Optional[Path], sensor: str = "hdl64") -> list[str]:
     import numpy as np
 
     from ros2_mos.ros.harness import NodeProcess, isolate_ros_domain, replay_through_node
@@ -138,7 +140,7 @@ def _bench_node(bag: Path, model: Optional[Path]) -> list[str]:
              "node receive -> publish mean (ms) | latency stamp -> /mos/labels median / p95 (ms) |",
              "|---|---|---|---|---|---|---|---|---|"]
     for hz, rate in ((10, 1.0), (20, 2.0)):
-        params = {"qos.reliability": "reliable", "qos.depth": "1"}
+        params = {"qos.reliability": "reliable", "qos.depth": "1", "sensor.preset": sensor}
         if model is not None:
             params["model"] = str(model.resolve())
         typer.echo(f"node run at {hz} Hz ...")

@@ -8,10 +8,10 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app
+from ros2_mos.cli.app import app, fail
 
 
-def load_config(config: Optional[Path], model: Optional[Path]):
+def load_config(config: Optional[Path], model: Optional[Path], sensor: Optional[str] = None):
     """The pipeline configuration of the node's params file (or the defaults), with ``--model`` on top.
 
     One file format for the node and the offline tools, so that offline results are
@@ -20,7 +20,12 @@ def load_config(config: Optional[Path], model: Optional[Path]):
     from ros2_mos.ros.params import load_params_file, mos_config, replace_model
 
     values = load_params_file(config) if config else {}
-    return mos_config(replace_model(values, None if model is None else str(model)))
+    return mos_config(replace_model(values, None if model is None else str(model), sensor))
+
+
+#: The --sensor option of infer, process, bench and demo.
+SENSOR_HELP = ("Sensor preset (hdl64, vlp16, vlp32c, os1-64, os1-128): its range image and shipped model "
+               "(overrides the params file's sensor.preset; default: the model's own sensor)")
 
 
 @app.command()
@@ -34,6 +39,7 @@ def infer(
                                                      "default: built-in defaults"),
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences of a dataset root"),
     use_poses: bool = typer.Option(False, "--use-poses", help="Use the dataset's poses.txt instead of KISS-ICP"),
+    sensor: Optional[str] = typer.Option(None, help=SENSOR_HELP),
 ) -> None:
     """Label every scan of a sequence (moving 251 / static 9, the benchmark's submission format)."""
     from tqdm import tqdm
@@ -43,7 +49,7 @@ def infer(
     from ros2_mos.metrics import MovingIoU
     from ros2_mos.pipeline import MosPipeline
 
-    pipeline = MosPipeline(load_config(config, model))
+    pipeline = MosPipeline(load_config(config, model, sensor))
     typer.echo(f"model {pipeline.model.path.name}: {pipeline.model.metadata.network}, "
                f"{pipeline.setup.label}, sensor {pipeline.sensor.name}, provider {pipeline.model.provider}")
     for seq_dir in sequence_dirs(sequence_dir, sequences):
@@ -51,6 +57,8 @@ def infer(
         score = MovingIoU()
         totals: list[float] = []
         for pred in tqdm(predict_sequence(pipeline, seq, use_poses), total=len(seq), desc=f"sequence {seq.name}"):
+            if pred.result.sensor_mismatch:  # every label would be wrong: stop before writing any
+                fail(f"{seq.name} scan {pred.index}: {pred.result.sensor_mismatch}")
             write_prediction(out, seq, pred.index, pred.result.labels)
             totals.append(pred.result.timings["total"])
             if pred.gt_classes is not None:

@@ -20,8 +20,13 @@ DEMO_SEED = 2026
 DEMO_WARMUP = 5
 
 
-def ensure_sequence(root: Path, name: str, scans: int, seed: int, preset: str = "benchmark") -> tuple[Path, Path]:
-    """A simulated HDL-64 sequence and its bag under ``root``, simulated on first use."""
+def ensure_sequence(root: Path, name: str, scans: int, seed: int, preset: str = "benchmark",
+                    sensor: str = "hdl64") -> tuple[Path, Path]:
+    """A simulated sequence of ``sensor`` and its bag under ``root``, simulated on first use.
+
+    Other sensors than the HDL-64E get their own folder (``NAME-SENSOR``)."""
+    if sensor != "hdl64":
+        name = f"{name}-{sensor}"
     from tqdm import tqdm
 
     from ros2_mos.sim import sequence_dir, simulate_sequence, write_sequence_bag
@@ -30,7 +35,7 @@ def ensure_sequence(root: Path, name: str, scans: int, seed: int, preset: str = 
     bag = root / "bags" / name
     if not (seq / "times.txt").is_file() or len(list((seq / "velodyne").glob("*.bin"))) != scans:
         with tqdm(total=scans, desc=f"simulating street '{name}'", unit="scan") as bar:
-            simulate_sequence(root, name, scans, preset, seed, "hdl64", progress=bar.update)
+            simulate_sequence(root, name, scans, preset, seed, sensor, progress=bar.update)
         if bag.exists():
             import shutil
 
@@ -48,13 +53,17 @@ def demo(
     model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped one)"),
     rate: float = typer.Option(1.0, help="Replay speed factor (1.0 = the sensor's 10 Hz; "
                                          "0 = lock-step, as fast as the node goes)"),
+    sensor: str = typer.Option("hdl64", help="Sensor preset to simulate and label (hdl64, vlp16, vlp32c, os1-64, "
+                                             "os1-128); the node uses the model shipped for it"),
 ) -> None:
     """Simulate a street, replay it as a bag through a running mos_node, print Hz, stage ms and moving IoU."""
+    from ros2_mos.config import sensor_preset
     from ros2_mos.ros.harness import NodeProcess, isolate_ros_domain, replay_through_node
 
-    seq_dir, bag = ensure_sequence(data, DEMO_SEQUENCE, scans, DEMO_SEED)
+    sensor = sensor_preset(sensor).name  # a clear error for an unknown name, before any simulation
+    seq_dir, bag = ensure_sequence(data, DEMO_SEQUENCE, scans, DEMO_SEED, sensor=sensor)
     domain = isolate_ros_domain()
-    params = {"qos.reliability": "reliable", "qos.depth": "1"}
+    params = {"qos.reliability": "reliable", "qos.depth": "1", "sensor.preset": sensor}
     if model is not None:
         params["model"] = str(model.resolve())
     typer.echo(f"starting mos_node (ROS_DOMAIN_ID={domain}) and replaying {bag} at rate {rate}")

@@ -18,14 +18,15 @@ from typing import Any, Optional
 import typer
 
 from ros2_mos.cli.app import app, fail
+from ros2_mos.cli.core_commands import SENSOR_HELP
 
 
-def _node_values(params: Optional[Path], model: Optional[Path]) -> dict[str, Any]:
-    """Parameter values from a ROS params file (the `mos_node` section), with ``--model`` on top."""
+def _node_values(params: Optional[Path], model: Optional[Path], sensor: Optional[str] = None) -> dict[str, Any]:
+    """Parameter values from a ROS params file (the `mos_node` section), with ``--model``, ``--sensor`` on top."""
     from ros2_mos.ros.params import load_params_file, replace_model
 
     values = load_params_file(params) if params is not None else {}
-    return replace_model(values, str(model) if model is not None else None)
+    return replace_model(values, str(model) if model is not None else None, sensor)
 
 
 @app.command()
@@ -37,6 +38,7 @@ def process(
     model: Optional[Path] = typer.Option(None, help="ONNX model (overrides the params file)"),
     storage: str = typer.Option("mcap", help="Output storage: mcap or sqlite3"),
     copy_input: bool = typer.Option(True, help="Also write the input clouds, so the bag is self-contained"),
+    sensor: Optional[str] = typer.Option(None, help=SENSOR_HELP),
 ) -> None:
     """Run the node's pipeline offline over a bag; write static/moving/labels/images/odometry (and /tf)."""
     from ros2_mos.datasets.bags import BagWriter, pointcloud_topic
@@ -45,7 +47,7 @@ def process(
     from ros2_mos.ros.params import mos_config, node_settings
     from ros2_mos.ros.processor import ScanProcessor
 
-    values = _node_values(params, model)
+    values = _node_values(params, model, sensor)
     settings = node_settings(values)
     processor = ScanProcessor(MosPipeline(mos_config(values)), settings, MessageTypes.rosbags())
     in_topic = pointcloud_topic(bag_in, topic)
@@ -95,6 +97,8 @@ def _process_into(bag: Any, processor: Any, bag_in: Path, in_topic: str, topics:
             skipped += 1
             tqdm.write(f"warning: scan at {stamp * 1e-9:.3f} s skipped: {exc}")
             continue
+        if out.result.sensor_mismatch:  # every label would be wrong: stop before writing any
+            fail(f"{bag_in} {in_topic}, scan at {stamp * 1e-9:.3f} s: {out.result.sensor_mismatch}")
         for note in out.notes:
             tqdm.write(f"warning: {note}")
         for key, message in out.messages.items():

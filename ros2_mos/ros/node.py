@@ -12,6 +12,7 @@ never imports torch.
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -26,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from ros2_mos.errors import ConfigError, ModelError, MosError, ScanError
 from ros2_mos.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
+from ros2_mos.ros.dds import transport_summary, use_large_message_profile
 from ros2_mos.ros.latest_queue import LatestQueue
 from ros2_mos.ros.params import NODE_NAME, OUTPUT_KEYS, PARAMS, ParamSpec, mos_config, node_settings
 from ros2_mos.ros.processor import ScanOutput, ScanProcessor, SkippedScan
@@ -139,6 +141,7 @@ class MosNode(Node):
         self._diag_timer = self.create_timer(s.diagnostics_period, self._publish_diagnostics)
         self._log_timer = self.create_timer(s.log_period, self._log_stats) if s.log_period > 0 else None
         self._last_output: ScanOutput | None = None
+        self._sensor_mismatch = ""  # the last mismatch logged (ros2_mos.sensor_check)
         self._worker = threading.Thread(target=self._work, name="mos_worker", daemon=True)
         self._worker.start()
         p = pipeline
@@ -162,7 +165,7 @@ class MosNode(Node):
     # ------------------------------------------------------------------ executor side
     def _on_cloud(self, msg: Any) -> None:
         """Hand the cloud to the worker; never blocks (the oldest waiting cloud is dropped)."""
-        self.stats.on_received()
+        self.stats.on_received(m.stamp_ns(msg.header.stamp) * 1e-9)
         if self._queue.put((msg, time.monotonic())):
             self.stats.on_dropped()
 
@@ -199,6 +202,10 @@ class MosNode(Node):
             return
         for note in out.notes:
             log.warning(note)
+        if out.result.sensor_mismatch != self._sensor_mismatch:  # one line when it starts (or ends)
+            self._sensor_mismatch = out.result.sensor_mismatch
+            if self._sensor_mismatch:
+                log.error(f"{self._sensor_mismatch}; labels are flagged degraded until the sensor matches")
         if out.reset:
             self.stats.on_reset("; ".join(out.notes) or "scan buffer reset")
         if self._stopped:
@@ -254,7 +261,9 @@ class MosNode(Node):
         level, message = m.OK, "ok"
         last = self._last_output
         stale = s.seconds_since_last_scan is None or s.seconds_since_last_scan > STALE_AFTER_S
-        if s.consecutive_errors >= ERROR_STREAK:
+        if last is not None and last.result.sensor_mismatch:
+            level, message = m.ERROR, last.result.sensor_mismatch
+        elif s.consecutive_errors >= ERROR_STREAK:
             level, message = m.ERROR, f"{s.consecutive_errors} scans failed in a row: {s.last_warning}"
         elif stale:
             level, message = m.WARN, "no input" + ("" if s.seconds_since_last_scan is None else
@@ -264,7 +273,9 @@ class MosNode(Node):
                                                             f"{last.result.n_past_available} of "
                                                             f"{last.result.n_past_required} past scans available")
         values: dict[str, Any] = {
-            "rate_hz": s.rate_hz, "received": s.received, "processed": s.processed, "dropped": s.dropped,
+            "rate_hz": s.rate_hz, "input_hz": s.input_hz, "capacity_hz": s.capacity_hz,
+            "received": s.received, "processed": s.processed, "dropped": s.dropped,
+            "lost_in_transport": s.lost_in_transport,
             "skipped": s.skipped_total, **{f"skipped.{k}": v for k, v in s.skipped.items()},
             "errors": s.errors, "resets": s.resets, "degraded_scans": s.degraded,
             "latency_ms_mean": s.latency_ms[0], "latency_ms_max": s.latency_ms[1],
@@ -307,11 +318,14 @@ class MosNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Console entry ``mos_node`` (also ``ros2 run ros2_mos mos_node`` on a ROS install)."""
+    # Before rclpy.init: DDS reads the profile when the participant is created.
+    transport = transport_summary(os.environ, use_large_message_profile())
     rclpy.init(args=args)
     node: MosNode | None = None
     code = 0
     try:
         node = MosNode()
+        node.get_logger().info(transport)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

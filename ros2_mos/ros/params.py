@@ -54,7 +54,8 @@ _DEF_RES, _DEF_POST, _DEF_ODOM, _DEF_MOS = ResidualConfig(), PostprocessConfig()
 PARAMS: tuple[ParamSpec, ...] = (
     # --- pipeline
     ParamSpec("model", "", "ONNX model exported by `ros2-mos export`; empty = the model shipped with the package"),
-    ParamSpec("sensor.preset", "", "Sensor preset (" + ", ".join(SENSOR_PRESETS) + "), 'custom' for the sensor.* values, "
+    ParamSpec("sensor.preset", "",
+              "Sensor preset (" + ", ".join(SENSOR_PRESETS) + "), 'custom' for the sensor.* values, "
               "or empty for the sensor the model was trained for"),
     ParamSpec("sensor.height", 64, "custom sensor: range image rows (beams)", min=1, max=1024),
     ParamSpec("sensor.width", 2048, "custom sensor: range image columns", min=1, max=16384),
@@ -62,14 +63,16 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("sensor.fov_down_deg", -25.0, "custom sensor: elevation of the bottom row (deg)", min=-90.0, max=90.0),
     ParamSpec("sensor.min_range", 0.0, "custom sensor: points closer than this are left out (m)", min=0.0),
     ParamSpec("sensor.max_range", 120.0, "custom sensor: points farther than this are left out (m)", min=0.0),
-    ParamSpec("threshold", _DEF_MOS.threshold, "moving probability at or above which a point is labelled moving; 0 = the model's recommended threshold (0.5 if none)",
-              min=0.0, max=1.0),
+    ParamSpec("threshold", _DEF_MOS.threshold,
+              "moving probability at or above which a point is labelled moving; "
+              "0 = the model's recommended threshold (0.5 if none)", min=0.0, max=1.0),
     ParamSpec("intra_op_threads", _DEF_MOS.intra_op_threads, "ONNX Runtime threads; 0 = runtime default",
               min=0, max=256),
     ParamSpec("geometry_backend", _DEF_MOS.geometry_backend,
               "residual images and kNN in numpy, or in torch (GPU path; needs torch installed)",
               choices=("numpy", "torch")),
-    ParamSpec("device", _DEF_MOS.device, "torch device of the torch geometry backend: auto (CUDA when present), cpu, cuda"),
+    ParamSpec("device", _DEF_MOS.device,
+              "torch device of the torch geometry backend: auto (CUDA when present), cpu, cuda"),
     ParamSpec("tune_malloc", _DEF_MOS.tune_malloc,
               "keep freed heap memory mapped (glibc mallopt, whole process): saves ~7 ms of page faults per scan"),
     ParamSpec("residuals.min_range", _DEF_RES.min_range, "residuals only where both ranges exceed this (m)", min=0.0),
@@ -85,6 +88,10 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("postprocess.segment_fill", _DEF_POST.segment_fill,
               "a connected non-ground range-image segment at least this share moving is labelled moving whole; "
               "0 = off", min=0.0, max=1.0),
+    ParamSpec("postprocess.min_region_pixels", _DEF_POST.min_region_pixels,
+              "connected moving range-image regions smaller than this (pixels of a 64 x 2048 image, scaled for "
+              "others) are labelled static; 0 = off",
+              min=0, max=10000),
     ParamSpec("odometry.max_range", _DEF_ODOM.max_range, "KISS-ICP: ignore points beyond (m)", min=0.0),
     ParamSpec("odometry.min_range", _DEF_ODOM.min_range, "KISS-ICP: ignore points closer than (m)", min=0.0),
     ParamSpec("odometry.voxel_size", 0.0, "KISS-ICP voxel size (m); 0 = max_range / 100", min=0.0),
@@ -94,7 +101,8 @@ PARAMS: tuple[ParamSpec, ...] = (
               "KISS-ICP registers every k-th point of the scan (1 = all; MOS still labels every point)", min=1, max=16),
     ParamSpec("odometry.deskew", _DEF_ODOM.deskew, "KISS-ICP constant-velocity deskewing"),
     ParamSpec("odometry.max_translation_jump", _DEF_ODOM.max_translation_jump,
-              "a larger motion per 0.1 s between two processed scans (m) is an odometry failure: the scan buffer is reset", min=0.0),
+              "a larger motion per 0.1 s between two processed scans (m) is an odometry failure: "
+              "the scan buffer is reset", min=0.0),
     ParamSpec("odometry.map_update", _DEF_ODOM.map_update,
               "what enters KISS-ICP's map: every point, or only those labelled static", choices=("all", "static")),
     # --- input
@@ -321,15 +329,17 @@ def describe() -> str:
     return "\n".join(rows)
 
 
-def replace_model(values: Mapping[str, Any], model: str | None) -> dict[str, Any]:
-    """``values`` with ``model`` set (CLI ``--model`` on top of a params file)."""
+def replace_model(values: Mapping[str, Any], model: str | None, sensor: str | None = None) -> dict[str, Any]:
+    """``values`` with ``model`` and ``sensor.preset`` set (CLI ``--model``, ``--sensor`` on top of a params file)."""
     out = dict(values)
     if model is not None:
         out["model"] = model
+    if sensor is not None:
+        out["sensor.preset"] = sensor
     return out
 
 
 __all__ = [
-    "NODE_NAME", "OUTPUT_KEYS", "PARAMS", "SPECS", "NodeSettings", "ParamSpec", "StaticMapSettings", "check_value", "defaults",
-    "describe", "load_params_file", "mos_config", "node_settings", "resolve", "replace_model",
+    "NODE_NAME", "OUTPUT_KEYS", "PARAMS", "SPECS", "NodeSettings", "ParamSpec", "StaticMapSettings", "check_value",
+    "defaults", "describe", "load_params_file", "mos_config", "node_settings", "resolve", "replace_model",
 ]
