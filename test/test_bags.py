@@ -105,3 +105,33 @@ def test_generic_writer_several_topics(tmp_path: Path) -> None:
     np.testing.assert_array_equal(decode_xyz_intensity(got["/mos/moving_points"])[0], points[::2])
     assert got["/mos/odometry"].pose.pose.position.y == 2.0
     assert got["/mos/odometry"].child_frame_id == "velodyne"
+
+
+def test_mcap_chunks_carry_crcs_so_damage_inside_them_is_an_error(tmp_path: Path) -> None:
+    import struct
+    from binascii import crc32
+
+    bag = tmp_path / "bag"
+    write_scans_bag(bag, iter(_scans(count=4, n=20_000)))
+    (mcap,) = bag.glob("*.mcap")
+    raw = bytearray(mcap.read_bytes())
+    # Walk the records after the 8-byte magic (opcode, uint64 length, content) to the first chunk (0x06):
+    # start, end, uncompressed size, uncompressed CRC32, compression, compressed size, data.
+    at, crcs = 8, []
+    while at < len(raw) - 8 and raw[at] != 0x0F:  # 0x0F: data end
+        opcode, length = raw[at], struct.unpack_from("<Q", raw, at + 1)[0]
+        if opcode == 0x06:
+            size, crc = struct.unpack_from("<QI", raw, at + 9 + 16)
+            name_len = struct.unpack_from("<I", raw, at + 9 + 28)[0]
+            data_at = at + 9 + 32 + name_len + 8
+            crcs.append(crc)
+            assert crc == crc32(raw[data_at:data_at + size])  # uncompressed chunks: the data as stored
+        at += 9 + length
+    assert crcs and all(crcs)
+    assert len(list(iter_pointclouds(bag))) == 4  # the intact bag reads
+    # Random bytes in the middle of the file (inside a chunk of point data): an error, not garbage.
+    middle = len(raw) // 2
+    raw[middle:middle + 5000] = np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes()
+    mcap.write_bytes(bytes(raw))
+    with pytest.raises(DatasetError):
+        list(iter_pointclouds(bag))

@@ -85,6 +85,76 @@ def _storage_plugin(storage: str) -> Any:
     return StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
 
 
+def _crc_writer_class() -> Any:
+    """rosbags' Writer whose MCAP chunks carry the CRC32 of their data (rosbags 0.11.9 writes 0: "no CRC").
+
+    With the CRC, a reader (rosbags' included) notices a damaged chunk instead of decoding garbage.
+    ``close_chunk`` follows rosbags 0.11.9's (pinned in requirements.txt) with the CRC filled in;
+    ``test_bags`` checks that a flipped byte inside a chunk is caught.
+    """
+    from binascii import crc32
+    from collections import defaultdict
+    from io import BytesIO
+
+    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2.enums import StoragePlugin
+    from rosbags.rosbag2.storage_mcap import (
+        McapWriter,
+        PendingChunk,
+        write_record,
+        write_string,
+        write_uint16,
+        write_uint32,
+        write_uint64,
+    )
+
+    class CrcMcapWriter(McapWriter):
+        def close_chunk(self) -> None:
+            data = self.chunk.bio.getvalue()
+            rec = BytesIO()
+            write_uint64(rec, self.chunk.message_start_time)
+            write_uint64(rec, self.chunk.message_end_time)
+            write_uint64(rec, len(data))
+            write_uint32(rec, crc32(data))
+            compressed = self.compressor(data)
+            write_string(rec, self.compression)
+            write_uint64(rec, len(compressed))
+            rec.write(compressed)
+            chunk_start = self.bio.tell()
+            write_record(self.bio, 0x06, rec)
+            chunk_end = self.bio.tell()
+            offsets: list[tuple[int, int]] = []
+            for cid, msgs in self.chunk.msgs.items():
+                offsets.append((cid, self.bio.tell()))
+                rec = BytesIO()
+                write_uint16(rec, cid)
+                write_uint32(rec, len(msgs) * 16)
+                for ts, offset in msgs:
+                    write_uint64(rec, ts)
+                    write_uint64(rec, offset)
+                write_record(self.bio, 0x07, rec)
+            rec = BytesIO()
+            write_uint64(rec, self.chunk.message_start_time)
+            write_uint64(rec, self.chunk.message_end_time)
+            write_uint64(rec, chunk_start)
+            write_uint64(rec, chunk_end - chunk_start)
+            write_uint32(rec, len(offsets) * 10)
+            for cid, offset in offsets:
+                write_uint16(rec, cid)
+                write_uint64(rec, offset)
+            write_uint64(rec, self.bio.tell() - chunk_end)
+            write_string(rec, self.compression)
+            write_uint64(rec, len(compressed))
+            write_uint64(rec, len(data))
+            self.chunks.append(rec)
+            self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+
+    class CrcWriter(Writer):
+        STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: CrcMcapWriter}
+
+    return CrcWriter
+
+
 class BagWriter:
     """A rosbag2 writer for several topics of rosbags messages.
 
@@ -96,12 +166,10 @@ class BagWriter:
     """
 
     def __init__(self, bag_path: str | Path, storage: str = "mcap") -> None:
-        from rosbags.rosbag2 import Writer
-
         self.path = Path(bag_path)
         if self.path.exists():
             raise DatasetError(f"bag output {self.path} already exists; remove it or choose another path")
-        self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=_storage_plugin(storage))
+        self._writer = _crc_writer_class()(self.path, version=BAG_VERSION, storage_plugin=_storage_plugin(storage))
         self._connections: dict[str, Any] = {}
         self.count = 0
 
