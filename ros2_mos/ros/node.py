@@ -29,7 +29,15 @@ from ros2_mos.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
 from ros2_mos.ros.dds import transport_summary, use_large_message_profile
 from ros2_mos.ros.latest_queue import LatestQueue
-from ros2_mos.ros.params import NODE_NAME, OUTPUT_KEYS, PARAMS, ParamSpec, mos_config, node_settings
+from ros2_mos.ros.params import (
+    NODE_NAME,
+    OUTPUT_KEYS,
+    PARAMS,
+    ParamSpec,
+    load_params_file,
+    mos_config,
+    node_settings,
+)
 from ros2_mos.ros.processor import ScanOutput, ScanProcessor, SkippedScan
 from ros2_mos.ros.stats import NodeStats, summary_line
 
@@ -316,6 +324,17 @@ class MosNode(Node):
             rclpy.logging.get_logger(NODE_NAME).info("final statistics: " + summary_line(self.stats.snapshot()))
 
 
+def _params_files(argv: list[str]) -> list[str]:
+    """The ``--params-file`` paths of a ROS command line."""
+    return [argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == "--params-file"]
+
+
+def _node_name(argv: list[str]) -> str:
+    """The node's name on a ROS command line (``-r __node:=NAME`` remaps it)."""
+    names = [arg.split(":=", 1)[1] for arg in argv if arg.startswith("__node:=") or arg.startswith("__name:=")]
+    return names[-1] if names else NODE_NAME
+
+
 def main(args: list[str] | None = None) -> None:
     """Console entry ``mos_node`` (also ``ros2 run ros2_mos mos_node`` on a ROS install)."""
     # Before rclpy.init: DDS reads the profile when the participant is created.
@@ -324,6 +343,9 @@ def main(args: list[str] | None = None) -> None:
     node: MosNode | None = None
     code = 0
     try:
+        argv = sys.argv if args is None else args
+        for params_file in _params_files(argv):  # read as the commands read it: a foreign file is an error
+            load_params_file(params_file, _node_name(argv))
         node = MosNode()
         node.get_logger().info(transport)
         rclpy.spin(node)

@@ -294,15 +294,40 @@ def _flatten(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def _ros_yaml_loader() -> Any:
+    """PyYAML's safe loader reading numbers as ROS's params parser does (YAML 1.2: ``1e4`` is a float)."""
+    import re
+
+    import yaml
+
+    class RosParamsLoader(yaml.SafeLoader):
+        pass
+
+    RosParamsLoader.yaml_implicit_resolvers = {
+        first: [(tag, regexp) for tag, regexp in resolvers if tag != "tag:yaml.org,2002:float"]
+        for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+    RosParamsLoader.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+\.[0-9]*|[0-9]+)(?:[eE][-+]?[0-9]+)?|[-+]?\.(?:inf|Inf|INF)"
+                   r"|\.(?:nan|NaN|NAN))$"),
+        list("-+0123456789."))
+    return RosParamsLoader
+
+
 def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
-    """The parameters a ROS params file gives ``node_name`` (its own section over ``/**``), flattened."""
+    """The parameters a ROS params file gives ``node_name`` (its own section over ``/**``), flattened.
+
+    Numbers are read as ROS reads them (``1e4`` is a float, as for ``mos_node --params-file``), and a
+    file without a section for the node is an error for the node and every command alike.
+    """
     import yaml
 
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"params file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        data = yaml.load(path.read_text(), Loader=_ros_yaml_loader()) or {}
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(data, Mapping):

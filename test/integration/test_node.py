@@ -400,3 +400,38 @@ def test_ready_line_shows_remapped_topics_and_a_namesake_is_reported(tiny_model_
     assert all("/lidar/top (best effort) -> " in line and "/seg/labels" in line for line in ready), ready
     assert any("another node named /mos_node is running" in out for out in outputs), outputs
     assert all("Traceback" not in out for out in outputs)
+
+
+def test_node_and_commands_read_a_params_file_alike(tmp_path, tiny_model_path):
+    """``1e4`` is a float for both (ROS reads YAML 1.2 numbers); a file for another node is refused by both."""
+    from ros2_mos.errors import ConfigError
+    from ros2_mos.ros.params import load_params_file, mos_config
+
+    exponent = tmp_path / "exponent.yaml"
+    exponent.write_text(f"mos_node:\n  ros__parameters:\n    model: {tiny_model_path}\n"
+                        "    residuals:\n      max_range: 4.5e1\n    odometry:\n      max_range: 1e2\n")
+    foreign = tmp_path / "foreign.yaml"
+    foreign.write_text("other_node:\n  ros__parameters:\n    threshold: 0.5\n")
+    values = load_params_file(exponent)
+    assert values["odometry.max_range"] == 100.0 and mos_config(values).residuals.max_range == 45.0
+    with pytest.raises(ConfigError, match="no parameters for node 'mos_node'"):
+        load_params_file(foreign)
+    for path, ok in ((exponent, True), (foreign, False)):
+        node = subprocess.Popen([_bin("mos_node"), "--ros-args", "--params-file", str(path)], env=_env(DOMAIN + 3),
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)
+        reader.start()
+        deadline = time.monotonic() + 20
+        while node.poll() is None and not any("ready in" in line for line in lines) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if node.poll() is None:
+            node.send_signal(signal.SIGINT)
+        code = node.wait(timeout=15)
+        reader.join(5)
+        out = "".join(lines)
+        assert "Traceback" not in out, out
+        if ok:
+            assert code == 0 and any("ready in" in line for line in lines), out
+        else:
+            assert code == 1 and "cannot start" in out and "no parameters for node 'mos_node'" in out, out
