@@ -256,11 +256,11 @@ def test_large_trees_are_randomised_and_built_as_lumpy_scaled_crowns() -> None:
     from ros2_mos.sim.scene import _Builder
 
     base = sim_preset("benchmark")
-    big = randomized_for_sequence(base, 100, "b00")
+    big = randomized_for_sequence(base, 100, "b00", large_trees=True, beam_layout=False)
     assert 0.5 <= big.scene.tree_prob <= 0.95 and 1 <= big.scene.crown_blobs <= 5
     assert big.scene.tree_scale[0] == 1.0 and 1.3 <= big.scene.tree_scale[1] <= 2.5
-    old = randomized_for_sequence(base, 100, "b00", large_trees=False)
-    assert old.scene == base.scene and old.effects == big.effects  # round 3's data: the same draws, no trees
+    small = randomized_for_sequence(base, 100, "b00", large_trees=False, beam_layout=False)
+    assert small.scene == base.scene and small.effects == big.effects  # the same draws, no large trees
 
     def tree(scene: SceneConfig) -> tuple[np.ndarray, np.ndarray]:
         builder = _Builder(np.random.default_rng(5), base.street, scene, None, 1)
@@ -278,6 +278,32 @@ def test_large_trees_are_randomised_and_built_as_lumpy_scaled_crowns() -> None:
         SceneConfig(crown_blobs=0)
     with pytest.raises(ConfigError):
         SceneConfig(tree_scale=(0.0, 1.0))
+
+
+def test_beam_layout_is_raised_and_jittered_per_sequence_and_fills_the_top_rows() -> None:
+    from ros2_mos.config import sensor_preset
+    from ros2_mos.sim.lidar import Lidar, beam_elevations
+    from ros2_mos.sim.presets import SensorEffects, randomized_for_sequence
+
+    base = sim_preset("benchmark")
+    round3 = randomized_for_sequence(base, 100, "b00", beam_layout=False)
+    assert round3.effects.beam_elevation_offset_deg == 0.0 and round3.effects.beam_elevation_jitter_deg == 0.0
+    shifted = randomized_for_sequence(base, 100, "b00")
+    e = shifted.effects
+    assert 0.2 <= e.beam_elevation_offset_deg <= 1.0 and 0.0 <= e.beam_elevation_jitter_deg <= 0.12
+    assert replace(e, beam_elevation_offset_deg=0.0, beam_elevation_jitter_deg=0.0, beam_seed=0) == round3.effects
+    hdl = sensor_preset("hdl64")
+    nominal = np.degrees(beam_elevations(hdl))
+    lidar = Lidar(hdl, SensorEffects(beam_elevation_offset_deg=0.5))
+    elevation = np.degrees(np.arcsin(lidar.dirs_sensor[::hdl.width, 2]))
+    np.testing.assert_allclose(elevation, nominal + 0.5, atol=1e-9)
+    assert (3.0 - elevation[0]) / (28.0 / 64) < 2  # the top beam now lands in row 1, as a real unit's does
+    jittered = [np.degrees(np.arcsin(Lidar(hdl, SensorEffects(beam_elevation_jitter_deg=0.1, beam_seed=s))
+                                     .dirs_sensor[::hdl.width, 2])) for s in (1, 1, 2)]
+    np.testing.assert_array_equal(jittered[0], jittered[1])  # fixed per seed (per sequence)
+    assert 0.05 < np.std(jittered[0] - nominal) < 0.15 and not np.array_equal(jittered[0], jittered[2])
+    with pytest.raises(ConfigError):
+        SensorEffects(beam_elevation_offset_deg=float("nan"))
 
 
 def test_bad_arguments_raise_typed_errors(tmp_path: Path) -> None:

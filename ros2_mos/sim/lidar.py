@@ -62,7 +62,10 @@ class Lidar:
         self.effects = effects
         self.max_range = min(sensor.max_range, effects.max_range)
         self.min_range = max(sensor.min_range, effects.ego_clearance)
-        el = beam_elevations(sensor)
+        el = beam_elevations(sensor) + np.radians(effects.beam_elevation_offset_deg)
+        if effects.beam_elevation_jitter_deg > 0:
+            deviation = np.random.default_rng(effects.beam_seed).normal(0.0, effects.beam_elevation_jitter_deg, len(el))
+            el = el + np.radians(deviation)
         az = column_azimuths(sensor)
         cos_el, sin_el = np.repeat(np.cos(el), sensor.width), np.repeat(np.sin(el), sensor.width)
         az_all = np.tile(az, sensor.height)

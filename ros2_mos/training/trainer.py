@@ -101,8 +101,10 @@ class TrainConfig:
     # Fine-tuning: start from this checkpoint's weights and normalisation (same network and input; a new
     # schedule from epoch 0). Ignored once out_dir/last.pt exists (the run then resumes as usual).
     init_from: str | None = None
-    # Read by tools/train_models.py when it simulates the sequences (randomised large, lumpy trees); not by training.
-    sim_large_trees: bool = True
+    # Read by tools/train_models.py when it simulates the sequences (ros2_mos.sim.presets.randomized:
+    # large, lumpy trees; beams off the nominal grid); not by training.
+    sim_large_trees: bool = False
+    sim_beam_layout: bool = True
 
     def __post_init__(self) -> None:
         if self.optimizer not in ("sgd", "adamw"):
