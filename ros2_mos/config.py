@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -254,6 +255,8 @@ class MosConfig:
     def __post_init__(self) -> None:
         if self.geometry_backend not in ("numpy", "torch"):
             raise ConfigError(f"geometry_backend must be 'numpy' or 'torch', got {self.geometry_backend!r}")
+        if not re.fullmatch(r"auto|cpu|cuda(:[0-9]+)?", str(self.device)):
+            raise ConfigError(f"device must be auto, cpu, cuda or cuda:N, got {self.device!r}")
         check_finite("mos", threshold=self.threshold)
         if not 0.0 <= self.threshold < 1.0:
             raise ConfigError(f"threshold must be in (0, 1), or 0 for the model's own, got {self.threshold}")

@@ -112,6 +112,21 @@ class MosModel:
         if len(hw) == 2 and all(isinstance(d, int) for d in hw) and hw != (sensor.height, sensor.width):
             raise ModelError(f"{self.path}: input is {hw[0]} x {hw[1]} "
                              f"but the metadata sensor is {sensor.height} x {sensor.width}")
+        outputs = [o.name for o in self.session.get_outputs()]
+        if OUTPUT_NAME not in outputs:
+            raise ModelError(f"{self.path}: no output named '{OUTPUT_NAME}' (outputs: {outputs})")
+        # One inference on zeros now, so that a graph that cannot run on this input (a channel mismatch
+        # hidden by dynamic shapes, a head with one class) fails at load, not on every scan.
+        probe = np.zeros((1, expected, sensor.height, sensor.width), np.float32)
+        try:
+            out = self.session.run([OUTPUT_NAME], {INPUT_NAME: probe})[0]
+        except Exception as exc:  # onnxruntime raises its own exception types
+            first = (str(exc).splitlines() or [""])[0][:160]
+            raise ModelError(f"{self.path}: a test inference on a {expected} x {sensor.height} x {sensor.width} "
+                             f"input failed ({first})") from None
+        if out.shape != (1, 2, sensor.height, sensor.width):
+            raise ModelError(f"{self.path}: output '{OUTPUT_NAME}' is {tuple(out.shape)}, expected (1, 2 classes, "
+                             f"{sensor.height}, {sensor.width}): (static, moving) probabilities per pixel")
 
     @property
     def channels(self) -> int:

@@ -16,16 +16,26 @@ import numpy as np
 import torch
 
 from ros2_mos.config import PostprocessConfig, ResidualConfig, SensorConfig
+from ros2_mos.errors import ConfigError
 from ros2_mos.projection import PixelIndex
 
 _EMPTY_RANGE = 1e9
 
 
 def pick_device(name: str = "auto") -> torch.device:
-    """'auto' takes CUDA when it is there, else the CPU."""
+    """'auto' takes CUDA when it is there, else the CPU; a device this torch cannot use is a ConfigError."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise ConfigError(f"device {name!r} is not a torch device (auto, cpu, cuda or cuda:N)") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {name!r}: this torch build or machine has no CUDA device (torch "
+                          f"{torch.__version__}); use device auto or cpu")
+    if device.type == "cuda" and device.index is not None and device.index >= torch.cuda.device_count():
+        raise ConfigError(f"device {name!r}: only {torch.cuda.device_count()} CUDA device(s) here")
+    return device
 
 
 def range_image(points: torch.Tensor, sensor: SensorConfig) -> torch.Tensor:

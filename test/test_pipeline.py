@@ -111,6 +111,49 @@ def test_model_whose_channels_disagree_with_its_metadata_is_refused(tmp_path):
         MosModel(path)
 
 
+def test_models_that_cannot_label_are_refused_at_load(tmp_path, tiny_model_path):
+    """A renamed output, a one-class head, a channel mismatch hidden by a dynamic shape: errors at load."""
+    import onnx
+    import torch
+    from torch import nn
+
+    from ros2_mos.inference import read_metadata
+    from ros2_mos.training.export import _torch_to_onnx_bytes, export_onnx
+
+    renamed = onnx.load(str(tiny_model_path))
+    for node in renamed.graph.node:
+        node.output[:] = ["scores" if o == "probability" else o for o in node.output]
+    renamed.graph.output[0].name = "scores"
+    onnx.save(renamed, str(tmp_path / "renamed.onnx"))
+    with pytest.raises(ModelError, match="no output named 'probability'"):
+        MosModel(tmp_path / "renamed.onnx")
+
+    class OneClass(nn.Module):
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            return x[:, :1]
+
+    with pytest.raises(ModelError, match="maps"):  # our exporter refuses such a head ...
+        export_onnx(OneClass(), read_metadata(tiny_model_path), tmp_path / "one.onnx")
+    # ... a file made elsewhere (here: torch's exporter and our metadata) is refused when loaded.
+    one = onnx.load_from_string(_torch_to_onnx_bytes(OneClass(), torch.zeros(1, 7, 32, 512), 17))
+    one.graph.output[0].name = "probability"
+    one.graph.node[-1].output[0] = "probability"
+    meta = next(p for p in onnx.load(str(tiny_model_path)).metadata_props)
+    one.metadata_props.add(key=meta.key, value=meta.value)
+    onnx.save(one, str(tmp_path / "one.onnx"))
+    with pytest.raises(ModelError, match=r"output 'probability' is \(1, 1, 32, 512\)"):
+        MosModel(tmp_path / "one.onnx")
+
+    # A convolution over 7 channels, its input's channel count left dynamic, metadata saying 10 (N=5).
+    dynamic = onnx.load_from_string(_torch_to_onnx_bytes(nn.Conv2d(7, 2, 1), torch.zeros(1, 7, 32, 512), 17))
+    dynamic.graph.input[0].type.tensor_type.shape.dim[1].dim_param = "channels"
+    wrong_meta = next(p for p in onnx.load(str(make_wrong_channels_model(tmp_path / "wrong.onnx"))).metadata_props)
+    dynamic.metadata_props.add(key=wrong_meta.key, value=wrong_meta.value)
+    onnx.save(dynamic, str(tmp_path / "dynamic.onnx"))
+    with pytest.raises(ModelError, match="a test inference on a 10 x 32 x 512 input failed"):
+        MosModel(tmp_path / "dynamic.onnx")
+
+
 def test_sensor_with_other_beam_count_than_the_model_is_refused(tiny_model_path):
     other = SensorConfig("other", 16, 512, 10.0, -20.0)
     with pytest.raises(ConfigError, match="trained for"):

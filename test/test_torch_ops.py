@@ -66,3 +66,18 @@ def test_pipeline_with_the_torch_backend_gives_the_numpy_labels(tiny_model_path)
         a, b = (p.process(pts, rem, 0.1 * i, pose=pose) for p in pipes)
         agree.append((a.labels == b.labels).mean())
     assert min(agree) > 0.995 and pipes[1].process(pts, rem, 1.0, pose=pose).labels.any()
+
+
+def test_devices_this_torch_cannot_use_are_config_errors():
+    from ros2_mos.config import MosConfig
+    from ros2_mos.errors import ConfigError
+    from ros2_mos.torch_ops import pick_device
+
+    with pytest.raises(ConfigError, match="device must be auto, cpu, cuda or cuda:N, got 'quantum'"):
+        MosConfig(geometry_backend="torch", device="quantum")
+    with pytest.raises(ConfigError, match="not a torch device"):
+        pick_device("quantum")
+    assert pick_device("cpu").type == "cpu" and pick_device("auto").type in ("cpu", "cuda")
+    if not torch.cuda.is_available():  # this CPU build: cuda is refused with the reason, not at the first scan
+        with pytest.raises(ConfigError, match="no CUDA device"):
+            pick_device("cuda")
