@@ -339,13 +339,19 @@ def main(args: list[str] | None = None) -> None:
     """Console entry ``mos_node`` (also ``ros2 run ros2_mos mos_node`` on a ROS install)."""
     # Before rclpy.init: DDS reads the profile when the participant is created.
     transport = transport_summary(os.environ, use_large_message_profile())
-    rclpy.init(args=args)
+    argv = sys.argv if args is None else args
+    try:
+        # Read as the commands read it (a missing, broken or foreign file is one line, not rcl's traceback).
+        for params_file in _params_files(argv):
+            load_params_file(params_file, _node_name(argv))
+        rclpy.init(args=args)
+    except (ConfigError, RuntimeError) as exc:  # rcl's own argument errors are RuntimeErrors (RCLError)
+        first = (str(exc).splitlines() or [""])[0]
+        rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {first}")
+        sys.exit(1)
     node: MosNode | None = None
     code = 0
     try:
-        argv = sys.argv if args is None else args
-        for params_file in _params_files(argv):  # read as the commands read it: a foreign file is an error
-            load_params_file(params_file, _node_name(argv))
         node = MosNode()
         node.get_logger().info(transport)
         rclpy.spin(node)

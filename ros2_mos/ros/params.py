@@ -124,7 +124,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("sensor_frame", "", "child frame of the odometry/transform; empty = the input cloud's frame_id"),
     ParamSpec("publish_tf", True, "publish odom -> sensor on /tf (where tf2_msgs is installed)"),
     ParamSpec("diagnostics_period", 1.0, "seconds between /diagnostics messages", min=0.1, max=3600.0),
-    ParamSpec("log_period", 10.0, "seconds between statistics log lines; 0 = never", min=0.0),
+    ParamSpec("log_period", 10.0, "seconds between statistics log lines; 0 = never", min=0.0, max=86400.0),
     # --- cleaned local map (the paper's clean-map application, online)
     ParamSpec("static_map.enabled", False, "publish a voxel map of the static points around the sensor"),
     ParamSpec("static_map.topic", "/mos/static_map", "output topic of the static map (PointCloud2 in odom_frame)"),
@@ -329,7 +329,7 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     try:
         data = yaml.load(path.read_text(), Loader=_ros_yaml_loader()) or {}
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
     if not isinstance(data, Mapping):
         raise ConfigError(f"{path}: expected a mapping of node names at the top level")
     values: dict[str, Any] = {}

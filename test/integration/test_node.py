@@ -267,7 +267,10 @@ def test_bad_parameter_is_rejected_at_start_up(tiny_model_path):
     for args, message in ([["-p", "threshold:=1.5"], "threshold"],
                           [["-p", "postprocess.mode:=fancy"], "postprocess.mode"],
                           [["-p", "threshhold:=0.3"], "unknown parameters"],
-                          [["-p", "model:=/nonexistent.onnx"], "model file not found"]):
+                          [["-p", "model:=/nonexistent.onnx"], "model file not found"],
+                          [["-p", "log_period:=.inf"], "log_period out of range"],
+                          [["--params-file", "/nonexistent/params.yaml"], "params file not found"],
+                          [["-p", "bogus:=:=:"], "failed to initialize rcl"]):
         cmd = [_bin("mos_node"), "--ros-args", "-p", f"model:={tiny_model_path}", *args]
         done = subprocess.run(cmd, env=_env(DOMAIN + 1), capture_output=True, text=True, timeout=30)
         assert done.returncode == 1, (args, done.stderr)
