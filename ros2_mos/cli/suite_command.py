@@ -22,6 +22,8 @@ def suite(
     scans: int = typer.Option(100, min=10, max=2000, help="Scans per simulated sequence"),
     quick: bool = typer.Option(False, "--quick", help="One seed per preset (a smoke test, not the suite's figures)"),
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the table (Markdown) to this file"),
+    sensor: str = typer.Option("hdl64", help="Sensor preset: its held-out drives are simulated into DATA/SENSOR "
+                                             "(other than hdl64) and scored with its model; real scans: hdl64 only"),
 ) -> None:
     """Moving IoU, precision, recall and false positives of a model beside the Residual and Residual + RG baselines."""
     from datetime import date
@@ -34,15 +36,22 @@ def suite(
 
     if out is not None and out.exists() and not out.is_file():
         fail(f"--out {out} exists and is not a file")
-    pipeline = MosPipeline(load_config(config, model))
+    from ros2_mos.config import sensor_preset
+
+    spec = sensor_preset(sensor)
+    if spec.name != "hdl64":
+        data, real = data / spec.name, None
+    pipeline = MosPipeline(load_config(config, model, spec.name))
     seeds = {k: v[:1] for k, v in SIM_SEEDS.items()} if quick else SIM_SEEDS
     typer.echo(f"model {pipeline.model.path.name}: {pipeline.model.metadata.network}, {pipeline.setup.label}, "
                f"threshold {pipeline.threshold:.2f}, sensor {pipeline.sensor.name}")
     with tqdm(desc="suite", unit="scan", leave=False) as bar:
-        rows = run_suite(pipeline, data, real, scans, seeds, log=typer.echo, progress=bar.update)
+        rows = run_suite(pipeline, data, real, scans, seeds, log=typer.echo, progress=bar.update,
+                         sensor=spec.name)
     pipeline.close()
     title = (f"Evaluation suite, {date.today().isoformat()}: model `{pipeline.model.path.name}` "
-             f"({pipeline.setup.label}, threshold {pipeline.threshold:.2f}), KISS-ICP poses, {scans} scans per "
+             f"({pipeline.setup.label}, threshold {pipeline.threshold:.2f}), sensor {pipeline.sensor.name}, "
+             f"KISS-ICP poses, {scans} scans per "
              "simulated sequence (seeds " + ", ".join(f"{k} {'/'.join(map(str, v))}" for k, v in seeds.items()) + ")\n")
     table = format_table(rows, title)
     typer.echo(table)
@@ -58,6 +67,7 @@ def calibrate(
     model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped model)"),
     config: Optional[Path] = typer.Option(None, help="The node's ROS params file; default: built-in defaults"),
     use_poses: bool = typer.Option(False, "--use-poses", help="The dataset's poses.txt instead of KISS-ICP"),
+    sensor: Optional[str] = typer.Option(None, help="Sensor preset (default: the model's own)"),
     write: bool = typer.Option(False, "--write", help="Store the best threshold in the model file's metadata"),
 ) -> None:
     """The moving threshold of best point IoU (after the kNN vote) on labelled validation sequences."""
@@ -68,7 +78,7 @@ def calibrate(
     from ros2_mos.pipeline import MosPipeline
     from ros2_mos.scoring.calibration import threshold_curve
 
-    pipeline = MosPipeline(load_config(config, model))
+    pipeline = MosPipeline(load_config(config, model, sensor))
     seqs = [SemanticKittiSequence(d) for d in sequence_dirs(data, sequences)]
     with tqdm(total=sum(len(s) for s in seqs), desc="calibrate", unit="scan", leave=False) as bar:
         curve = threshold_curve(pipeline, seqs, use_poses, progress=bar.update)

@@ -120,7 +120,8 @@ def score_sequence(pipeline: MosPipeline, sequence: SemanticKittiSequence, name:
 
 
 def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...]] = SIM_SEEDS,
-                         log: Callable[[str], None] = lambda s: None) -> list[tuple[str, str, Path]]:
+                         log: Callable[[str], None] = lambda s: None,
+                         sensor: str = "hdl64") -> list[tuple[str, str, Path]]:
     """(preset, row name, sequence folder) of the suite's simulated sequences, simulating missing ones."""
     from ros2_mos.sim import sim_preset, simulate_sequence
 
@@ -131,7 +132,7 @@ def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...
             folder = root / "sequences" / name
             if not (folder / "poses.txt").is_file():
                 log(f"simulating {name} ({scans} scans) into {folder}")
-                simulate_sequence(root, name, scans, sim_preset(preset), seed)
+                simulate_sequence(root, name, scans, sim_preset(preset), seed, sensor)
             out.append((preset, name, folder))
     return out
 
@@ -146,10 +147,10 @@ def real_sequences(real_root: Path | None) -> list[Path]:
 
 def run_suite(pipeline: MosPipeline, sim_root: Path, real_root: Path | None, scans: int = 100,
               seeds: dict[str, tuple[int, ...]] = SIM_SEEDS, log: Callable[[str], None] = lambda s: None,
-              progress: Callable[[], None] | None = None) -> list[RowScore]:
+              progress: Callable[[], None] | None = None, sensor: str = "hdl64") -> list[RowScore]:
     """Every row of the suite: per sequence, per preset, the real scans; absent real scans are skipped."""
     rows: list[RowScore] = []
-    for preset, group in _grouped(ensure_sim_sequences(sim_root, scans, seeds, log)):
+    for preset, group in _grouped(ensure_sim_sequences(sim_root, scans, seeds, log, sensor)):
         total = RowScore(f"sim {preset}")
         for name, folder in group:
             row = score_sequence(pipeline, SemanticKittiSequence(folder), f"  {name}", progress=progress)
@@ -165,6 +166,8 @@ def run_suite(pipeline: MosPipeline, sim_root: Path, real_root: Path | None, sca
             rows.append(row)
             total.add(row)
         rows.append(total)
+    elif real_root is None:
+        log("real scans skipped: the development scans are HDL-64E scans")
     else:
         log(f"real scans skipped: no {real_root}/sequences/*/{{velodyne,labels}} "
             "(unpack them with ../shared/real/unpack.sh data/real-kitti08-dev)")
