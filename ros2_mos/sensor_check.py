@@ -50,7 +50,7 @@ def cloud_shape(points: np.ndarray) -> CloudShape | None:
     Rings are counted locally: within a 1-degree azimuth wedge the points' elevations fall into one
     tight cluster per laser (across the whole sweep real sensors' rings smear, e.g. by the HDL-64E's
     per-laser offsets), clusters split where sorted elevations jump by more than ``RING_GAP_DEG``.
-    The median over 36 wedges is the ring count.
+    The 80th percentile over 36 wedges is the ring count.
     """
     xyz = np.asarray(points, np.float64)
     xyz = xyz[np.isfinite(xyz).all(axis=1)]
@@ -61,18 +61,17 @@ def cloud_shape(points: np.ndarray) -> CloudShape | None:
         return None
     elevation = np.degrees(np.arctan2(xyz[:, 2], horizontal))
     azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
-    far = horizontal > 5.0  # range noise moves near points' elevations by more than the ring gap
-    if far.sum() < MIN_POINTS // 2:
-        far[:] = True
     counts = []
     for start in np.arange(-180.0, 180.0, 10.0):
-        wedge = np.sort(elevation[far & (azimuth >= start) & (azimuth < start + WEDGE_DEG)])
+        wedge = np.sort(elevation[(azimuth >= start) & (azimuth < start + WEDGE_DEG)])
         if len(wedge) >= 8:
             counts.append(1 + int((np.diff(wedge) > RING_GAP_DEG).sum()))
     if len(counts) < 6:
         return None
     top, bottom = np.percentile(elevation, [99.9, 0.1])
-    return CloudShape(int(round(float(np.median(counts)))), float(top), float(bottom), len(elevation))
+    # Rings go missing in a wedge (sky, dark or absent surfaces), extra ones are rare: the wedges that see the
+    # most rings tell the count (the 80th percentile, robust to a few that split a ring in two).
+    return CloudShape(int(round(float(np.percentile(counts, 80)))), float(top), float(bottom), len(elevation))
 
 
 def fits(shape: CloudShape, sensor: SensorConfig) -> bool:
