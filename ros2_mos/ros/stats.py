@@ -14,7 +14,8 @@ Rates mean what they say:
 
 Losses say where they happened: ``dropped`` clouds were replaced in the node's one-scan
 queue while it was busy; ``lost_in_transport`` is estimated from gaps in the received
-stamps (a gap of k nominal periods is k - 1 clouds that never arrived).
+stamps (a gap of k nominal periods is k - 1 clouds that never arrived; the nominal period is a low quantile of
+the recent steps, so regular losses do not hide themselves).
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ class NodeStats:
         self._last_stamp: float | None = None
         self._periods: deque[float] = deque(maxlen=window)
         self._closed_span = 0.0  # input time of stretches before time last went back
-        self.lost_in_transport = 0
+        self._lost_settled = 0
 
     def on_received(self, stamp: float | None = None) -> None:
         """A cloud arrived; ``stamp`` (its header stamp, s) drives the input-time rates and the loss estimate."""
@@ -89,21 +90,30 @@ class NodeStats:
             if self._last_stamp is None or self._first_stamp is None:
                 self._first_stamp = self._last_stamp = stamp
             elif stamp > self._last_stamp:
-                dt = stamp - self._last_stamp
-                period = self._nominal_period()
-                if period is not None and dt > 1.5 * period:
-                    self.lost_in_transport += max(0, round(dt / period) - 1)
-                else:
-                    self._periods.append(dt)
+                if len(self._periods) == self._periods.maxlen:  # the oldest step leaves the window: settle it
+                    self._lost_settled += self._lost_in(self._periods[0], self._nominal_period())
+                self._periods.append(stamp - self._last_stamp)
                 self._last_stamp = stamp
             elif stamp < self._first_stamp:  # time went back (a replay restarted): a new stretch of input time
                 self._closed_span += self._input_span()
                 self._first_stamp = self._last_stamp = stamp
 
+    @staticmethod
+    def _lost_in(step: float, period: float | None) -> int:
+        return max(0, round(step / period) - 1) if period and step > 1.5 * period else 0
+
+    @property
+    def lost_in_transport(self) -> int:
+        """Clouds missing between the received stamps (settled ones plus those in the current window)."""
+        period = self._nominal_period()
+        return self._lost_settled + sum(self._lost_in(step, period) for step in self._periods)
+
     def _nominal_period(self) -> float | None:
+        """The sensor's period: a low quantile of the recent stamp steps (losses only ever lengthen a step,
+        even when every other cloud is lost)."""
         if len(self._periods) < 3:
             return None
-        return sorted(self._periods)[len(self._periods) // 2]
+        return sorted(self._periods)[len(self._periods) // 20]
 
     def on_dropped(self) -> None:
         with self._lock:
