@@ -41,7 +41,12 @@ def connected_regions(valid: np.ndarray, rng: np.ndarray, rel: float, min_jump: 
     link_down &= np.abs(rng[:-1] - rng[1:]) < np.maximum(min_jump, rel * np.minimum(rng[:-1], rng[1:]))
     a = np.concatenate([ids[link_right], ids[:-1][link_down]])
     b = np.concatenate([np.roll(ids, -1, axis=1)[link_right], ids[1:][link_down]])
-    parent = ids.reshape(-1).copy()
+    return np.where(valid, _union_find(h * w, a, b).reshape(h, w), -1)
+
+
+def _union_find(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Component label (its smallest member) of each of ``n`` nodes joined by the edges ``a[i]``-``b[i]``."""
+    parent = np.arange(n, dtype=np.int64)
     while len(a):
         pa, pb = parent[a], parent[b]
         differ = pa != pb
@@ -54,7 +59,7 @@ def connected_regions(valid: np.ndarray, rng: np.ndarray, rel: float, min_jump: 
             if np.array_equal(jumped, parent):
                 break
             parent = jumped
-    return np.where(valid, parent.reshape(h, w), -1)
+    return parent
 
 
 def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:
@@ -97,19 +102,33 @@ def drop_small_regions(prob_image: np.ndarray, range_image: np.ndarray, threshol
                        rel_jump: float = 0.1, min_jump: float = 0.5) -> np.ndarray:
     """The probability image with every connected moving region of fewer than ``min_pixels`` pixels set to 0.
 
-    Regions are 4-connected moving pixels (probability >= threshold) whose neighbouring ranges differ by
-    less than ``max(min_jump, rel_jump * range)``: speckle on foliage and at depth edges, not an object.
+    Regions are 4-connected moving pixels (probability >= threshold; the image wraps in azimuth) whose
+    neighbouring ranges differ by less than ``max(min_jump, rel_jump * range)``: speckle on foliage and at depth
+    edges, not an object.  Only the moving pixels are labelled (a few thousand, not the whole image).
     """
     moving = (prob_image >= threshold) & (range_image > 0)
     if min_pixels <= 1 or not moving.any():
         return prob_image
-    regions = connected_regions(moving, range_image, rel_jump, min_jump)
-    labels = regions[moving]
-    size = np.bincount(labels, minlength=regions.size)
-    small = np.zeros(moving.shape, bool)
-    small[moving] = size[labels] < min_pixels
+    h, w = moving.shape
+    flat = np.flatnonzero(moving)
+    compact = np.full(h * w, -1, np.int64)
+    compact[flat] = np.arange(len(flat))
+    rng = range_image.reshape(-1)
+    row, col = np.divmod(flat, w)
+    right = row * w + (col + 1) % w
+    down = np.where(row < h - 1, flat + w, flat)
+    a, b = [], []
+    for other in (right, down):
+        j = compact[other]
+        near = (j >= 0) & (other != flat)
+        i, j, r0, r1 = np.flatnonzero(near), j[near], rng[flat[near]], rng[other[near]]
+        close = np.abs(r0 - r1) < np.maximum(min_jump, rel_jump * np.minimum(r0, r1))
+        a.append(i[close])
+        b.append(j[close])
+    labels = _union_find(len(flat), np.concatenate(a), np.concatenate(b))
+    small = np.bincount(labels, minlength=len(flat))[labels] < min_pixels
     if not small.any():
         return prob_image
     out = prob_image.copy()
-    out[small] = 0.0
+    out.reshape(-1)[flat[small]] = 0.0
     return out

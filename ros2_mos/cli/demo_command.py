@@ -34,11 +34,12 @@ def ensure_sequence(root: Path, name: str, scans: int, seed: int, preset: str = 
     seq = sequence_dir(root, name)
     bag = root / "bags" / name
     if not (seq / "times.txt").is_file() or len(list((seq / "velodyne").glob("*.bin"))) != scans:
+        import shutil
+
+        shutil.rmtree(seq, ignore_errors=True)  # another length before: no stale scans beyond this one's end
         with tqdm(total=scans, desc=f"simulating street '{name}'", unit="scan") as bar:
             simulate_sequence(root, name, scans, preset, seed, sensor, progress=bar.update)
         if bag.exists():
-            import shutil
-
             shutil.rmtree(bag)
     if not bag.exists():
         bag.parent.mkdir(parents=True, exist_ok=True)
