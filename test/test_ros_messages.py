@@ -136,12 +136,16 @@ def test_stats_count_clouds_lost_on_the_way_and_restart_input_time():
     snap = s.snapshot()
     assert snap.lost_in_transport == 5 and snap.received == 8
     assert abs(snap.input_hz - 8 / 1.3) < 1e-6  # 1.2 s from first to last stamp + one period
-    every_other = NodeStats(window=10)
+    every_other = NodeStats(window=10, max_gap_s=5.0)
     for i in range(0, 20, 2):  # half the clouds lost, regularly: still counted
         every_other.on_received(10.0 + i * 0.1)
     every_other.on_received(12.0)
     every_other.on_received(12.1)
     assert every_other.snapshot().lost_in_transport == 9
+    paused = NodeStats(window=10, max_gap_s=1.0)
+    for t in (0.0, 0.1, 0.2, 0.3, 2.3, 2.4):  # a 2 s pause (the node resets after 1 s): not lost clouds
+        paused.on_received(t)
+    assert paused.snapshot().lost_in_transport == 0
     s.on_received(10.0)  # time went back: a replay restarted; its input time adds up
     s.on_received(10.1)
     assert abs(s.snapshot().input_hz - 10 / 1.5) < 1e-6

@@ -81,7 +81,7 @@ def demo(
     if d:
         typer.echo(f"mos_node: capacity {d.get('capacity_hz', '?')} Hz (mean {d.get('total_ms_mean', '?')} ms per "
                    f"scan); lost {d.get('dropped', '?')} in its one-scan queue while busy, "
-                   f"~{d.get('lost_in_transport', '?')} on the way in")
+                   f"~{d.get('lost_in_transport', '?')} on the way in (estimated from gaps in the stamps)")
     if report.latency_ms:
         lat = sorted(report.latency_ms)
         typer.echo(f"latency stamp -> /mos/labels received: median {lat[len(lat) // 2]:.0f} ms, "

@@ -84,7 +84,6 @@ class MosNode(Node):
         super().__init__(NODE_NAME, **node_kwargs)
         self._worker: threading.Thread | None = None
         self._queue: LatestQueue[tuple[Any, float]] = LatestQueue(1)
-        self.stats = NodeStats()
         self._stopped = False
         try:
             self._setup()
@@ -115,6 +114,7 @@ class MosNode(Node):
         t0 = time.perf_counter()
         values = self._declare()
         self.settings = node_settings(values)
+        self.stats = NodeStats(max_gap_s=self.settings.reset_after_gap)  # longer gaps: paused input, not losses
         pipeline = MosPipeline(mos_config(values))
         self.types = m.MessageTypes.rclpy()
         self.processor = ScanProcessor(pipeline, self.settings, self.types)

@@ -58,7 +58,7 @@ class Snapshot:
 class NodeStats:
     """Thread-safe counters and sliding windows (``window`` scans) of timings."""
 
-    def __init__(self, window: int = 50, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, window: int = 50, clock: Callable[[], float] = time.monotonic, max_gap_s: float = 1.0) -> None:
         self._lock = threading.Lock()
         self._clock = clock
         self._window = window
@@ -79,6 +79,7 @@ class NodeStats:
         self._periods: deque[float] = deque(maxlen=window)
         self._closed_span = 0.0  # input time of stretches before time last went back
         self._lost_settled = 0
+        self._max_gap = max_gap_s  # a longer gap is a pause of the input (the node resets), not lost clouds
 
     def on_received(self, stamp: float | None = None) -> None:
         """A cloud arrived; ``stamp`` (its header stamp, s) drives the input-time rates and the loss estimate."""
@@ -98,9 +99,10 @@ class NodeStats:
                 self._closed_span += self._input_span()
                 self._first_stamp = self._last_stamp = stamp
 
-    @staticmethod
-    def _lost_in(step: float, period: float | None) -> int:
-        return max(0, round(step / period) - 1) if period and step > 1.5 * period else 0
+    def _lost_in(self, step: float, period: float | None) -> int:
+        if not period or step <= 1.5 * period or step > self._max_gap:
+            return 0
+        return max(0, round(step / period) - 1)
 
     @property
     def lost_in_transport(self) -> int:
