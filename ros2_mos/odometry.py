@@ -1,10 +1,11 @@
 """Online odometry (KISS-ICP) and the ring buffer of past scans the residuals need.
 
-KISS-ICP's ``register_frame`` registers a scan and adds it to its local map in one
-step.  We split the two so that the map can be updated with the *static* points of
-the MOS decision for the same scan (``map_update='static'``): the pose of scan t
-is estimated before its labels exist (the residuals need it), so this is the
-causal way to keep moving objects out of the registration of every later scan.
+KISS-ICP's ``register_frame`` (version 1.3.0, pinned in setup.py and requirements.txt)
+registers a scan and adds it to its local map in one step.  We split the two so that
+the map can be updated with the *static* points of the MOS decision for the same scan
+(``map_update='static'``): the pose of scan t is estimated before its labels exist (the
+residuals need it), so this is the causal way to keep moving objects out of the
+registration of every later scan.
 """
 
 from __future__ import annotations
