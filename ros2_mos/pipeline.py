@@ -56,6 +56,8 @@ class MosResult:
     # Non-empty when the stream's first scan (since start or reset) did not fit the configured sensor
     # (ros2_mos.sensor_check): every label of the stream is then suspect.
     sensor_mismatch: str = ""
+    # True when this scan reset the scan buffer (time went backwards, odometry failed or jumped).
+    reset: bool = False
 
     @property
     def residuals_complete(self) -> bool:
@@ -173,6 +175,7 @@ class MosPipeline:
             e = np.nan_to_num(rem[kept], nan=0.0, posinf=0.0, neginf=0.0)
 
         warnings: list[str] = []
+        reset = False
         if self.setup.uses_remission and len(e) and (float(e.max()) > MAX_REMISSION or float(e.min()) < 0.0):
             warnings.append(
                 f"intensity spans {float(e.min()):.3g}..{float(e.max()):.3g}, outside the 0..1 remission this model "
@@ -181,6 +184,7 @@ class MosPipeline:
         if self._last_stamp is not None and timestamp <= self._last_stamp:
             warnings.append(f"time went backwards ({self._last_stamp:.3f} -> {timestamp:.3f} s): buffer reset")
             self.reset()
+            reset = True
         if self._sensor_mismatch is None:  # the first scan of a stream: is it the configured sensor at all?
             self._sensor_mismatch = mismatch_message(xyz, self.sensor) or ""
         watch.lap("validate")
@@ -191,6 +195,7 @@ class MosPipeline:
                 # A diverged ICP: its state is poisoned, so start a new odometry sequence at this scan.
                 warnings.append("odometry returned a non-finite pose: odometry and buffer reset")
                 self.reset()
+                reset = True
                 pose = np.asarray(self.odometry.estimate(xyz), dtype=np.float64)
                 if not np.isfinite(pose).all():
                     raise ScanError("odometry returned a non-finite pose for this scan even after a reset")
@@ -205,6 +210,7 @@ class MosPipeline:
                 warnings.append(f"pose jumped {jump:.1f} m since the last scan (limit {limit:.1f} m): "
                                 "odometry suspect, buffer reset")
                 self.buffer.clear()
+                reset = True
         watch.lap("odometry")
 
         image = project(xyz, e, self.sensor)
@@ -283,4 +289,5 @@ class MosPipeline:
             timings=watch.timings,
             warnings=warnings,
             sensor_mismatch=self._sensor_mismatch or "",
+            reset=reset,
         )

@@ -77,8 +77,9 @@ def test_time_going_backwards_resets_the_buffer(pipeline):
     for i, (pts, rem, _, pose) in enumerate(seq):
         pipeline.process(pts, rem, 1.0 + 0.1 * i, pose=pose)
     res = pipeline.process(seq[0][0], seq[0][1], 0.5, pose=seq[0][3])
-    assert res.n_past_available == 0 and res.degraded
+    assert res.n_past_available == 0 and res.degraded and res.reset
     assert any("backwards" in w for w in res.warnings)
+    assert not pipeline.process(seq[1][0], seq[1][1], 0.6, pose=seq[1][3]).reset  # the next scan: no reset
 
 
 def test_pose_jump_resets_the_buffer(pipeline):
@@ -88,7 +89,7 @@ def test_pose_jump_resets_the_buffer(pipeline):
     far = seq[2][3].copy()
     far[0, 3] += 50.0
     res = pipeline.process(seq[2][0], seq[2][1], 0.2, pose=far)
-    assert res.n_past_available == 0
+    assert res.n_past_available == 0 and res.reset
     assert any("jumped" in w for w in res.warnings)
     assert not res.residuals.any()
 

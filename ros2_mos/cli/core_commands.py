@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import statistics
 from pathlib import Path
 from typing import Optional
 
@@ -63,8 +64,7 @@ def infer(
             totals.append(pred.result.timings["total"])
             if pred.gt_classes is not None:
                 score.update(pred.result.labels, pred.gt_classes)
-        totals.sort()
-        line = f"sequence {seq.name}: {len(seq)} scans, median {totals[len(totals) // 2]:.1f} ms/scan"
+        line = f"sequence {seq.name}: {len(seq)} scans, median {statistics.median(totals):.1f} ms/scan"
         if seq.has_labels:
             line += f", moving IoU {100 * score.iou:.1f}"
         typer.echo(line)

@@ -7,6 +7,7 @@ install), and the node's ``/mos/labels`` are compared with the ground truth.
 
 from __future__ import annotations
 
+import statistics
 from pathlib import Path
 from typing import Any, Optional
 
@@ -83,9 +84,8 @@ def demo(
                    f"scan); lost {d.get('dropped', '?')} in its one-scan queue while busy, "
                    f"~{d.get('lost_in_transport', '?')} on the way in (estimated from gaps in the stamps)")
     if report.latency_ms:
-        lat = sorted(report.latency_ms)
-        typer.echo(f"latency stamp -> /mos/labels received: median {lat[len(lat) // 2]:.0f} ms, "
-                   f"max {lat[-1]:.0f} ms")
+        typer.echo(f"latency stamp -> /mos/labels received: median {statistics.median(report.latency_ms):.0f} ms, "
+                   f"max {max(report.latency_ms):.0f} ms")
     typer.echo(score_line(seq_dir, report.labels))
     if node.final_statistics():
         typer.echo(f"mos_node: {node.final_statistics()}")

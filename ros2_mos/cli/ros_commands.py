@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import statistics
 import time
 from pathlib import Path
 from typing import Any, Optional
@@ -70,8 +71,7 @@ def process(
     finally:
         signal.signal(signal.SIGTERM, previous)
         shutil.rmtree(partial, ignore_errors=True)
-    totals.sort()
-    typer.echo(f"{done} scans processed, {skipped} skipped; median {totals[len(totals) // 2]:.1f} ms/scan; "
+    typer.echo(f"{done} scans processed, {skipped} skipped; median {statistics.median(totals):.1f} ms/scan; "
                f"{100.0 * moving / max(points, 1):.1f}% of points moving; wrote {bag_out}")
 
 

@@ -105,12 +105,10 @@ class ScanProcessor:
                 self.pipeline.reset()
                 notes.append(f"{gap:.2f} s since the last scan (> reset_after_gap): scan buffer reset")
                 reset = True
-            elif gap < 0:
-                reset = True  # the pipeline resets itself and says so in its warnings
         result = self.pipeline.process(points, intensity, stamp * 1e-9)
         self._last_stamp = stamp
         notes.extend(result.warnings)
-        reset = reset or any("reset" in w for w in result.warnings)
+        reset = reset or result.reset
 
         t1 = time.perf_counter()
         kept = valid_index[result.valid]
