@@ -102,7 +102,8 @@ def main() -> None:
         result = {"sent": len(clouds), "points": int(np.median([len(s) for s in scans])),
                   **{t: sorted(v) for t, v in got.items()}}
     print(json.dumps(result), flush=True)
-    executor.shutdown()
+    executor.shutdown(timeout_sec=5.0)
+    spin.join(timeout=5.0)  # a spin thread still inside rcl at exit aborts the process ("terminate called ...")
     node.destroy_node()
     rclpy.try_shutdown()
 
