@@ -30,10 +30,8 @@ def default_model_path(sensor: str | None = None) -> Path:
     ``default.onnx`` (the HDL-64E's): a sensor without its own model gets a clear error from the
     pipeline, which compares the sensor with the one the model was trained for.
     """
-    models = Path(str(resources.files("ros2_mos") / "models"))
-    if sensor and (models / f"{sensor}.onnx").is_file():
-        return models / f"{sensor}.onnx"
-    return models / DEFAULT_MODEL_NAME
+    models = shipped_models()
+    return models.get(sensor or "hdl64", models["hdl64"])
 
 
 def shipped_models() -> dict[str, Path]:
