@@ -9,6 +9,7 @@
 # TRAIN_MINUTES of training; best.pt of each run and one tar of logs, metrics and last.pt land in $OUT.
 # Needs numpy, torch, PyYAML and embreex (a wheel in .whl/ is installed into /tmp/site if present).
 set -u
+echo "cores: $(nproc)"
 minutes=${1:-3.5}
 scans=${2:-60}
 per_preset=${3:-8}
@@ -22,7 +23,7 @@ python3 - <<'EOF' || exit 1
 import torch, embreex, numpy, yaml
 print("torch", torch.__version__, "cuda", torch.cuda.is_available(), "numpy", numpy.__version__, flush=True)
 EOF
-nproc
+
 train=""
 for p in b t e; do
     for i in $(seq 0 $((per_preset - 1))); do train="$train,$p$(printf %02d "$i")"; done

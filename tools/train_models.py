@@ -66,7 +66,20 @@ def main() -> int:
     args = parser.parse_args()
 
     base = yaml.safe_load(Path(args.config).read_text())
-    names = list(base["train_sequences"]) + list(base["valid_sequences"])
+    variants = []
+    for text in args.variant or [Path(args.config).stem]:
+        name, *pairs = text.split()
+        overrides = {}
+        for pair in pairs:
+            key, sep, value = pair.partition("=")
+            if not sep:
+                print(f"error: variant {name}: {pair!r} is not KEY=VALUE", file=sys.stderr)
+                return 2
+            overrides[key] = yaml.safe_load(value)
+        variants.append((name, {**base, **overrides, "out_dir": str(Path(args.runs) / name)}))
+    # Every sequence some variant trains or validates on (a variant may override the lists).
+    names = list(dict.fromkeys(str(n) for _, config in variants
+                               for n in [*config["train_sequences"], *config["valid_sequences"]]))
     unknown = [n for n in names if n[:1] not in PRESET_OF_PREFIX]
     if unknown:
         print(f"error: sequence names must start with b, t or e (the preset): {unknown}", file=sys.stderr)
@@ -87,17 +100,6 @@ def main() -> int:
     if args.simulate_only:
         return 0
 
-    variants = []
-    for text in args.variant or [Path(args.config).stem]:
-        name, *pairs = text.split()
-        overrides = {}
-        for pair in pairs:
-            key, sep, value = pair.partition("=")
-            if not sep:
-                print(f"error: variant {name}: {pair!r} is not KEY=VALUE", file=sys.stderr)
-                return 2
-            overrides[key] = yaml.safe_load(value)
-        variants.append((name, {**base, **overrides, "out_dir": str(Path(args.runs) / name)}))
     runs = Path(args.runs)
     runs.mkdir(parents=True, exist_ok=True)
     ctx = mp.get_context("spawn")
