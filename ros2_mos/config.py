@@ -167,11 +167,17 @@ class PostprocessConfig:
     # with the image size for other sensors) are labelled static (ros2_mos.segments.drop_small_regions):
     # speckle on foliage and depth edges; 0 = off.
     min_region_pixels: int = 30
+    # Temporal fusion (ros2_mos.temporal.BeliefFilter): how much of the last scan's moving belief (log-odds)
+    # at the same surface carries into this scan's; 0 = off (each scan labelled on its own), at most 1.
+    temporal_weight: float = 0.5
 
     def __post_init__(self) -> None:
         if self.mode not in ("knn", "nearest"):
             raise ConfigError(f"postprocess mode must be 'knn' or 'nearest', got {self.mode!r}")
-        check_finite("postprocess", sigma=self.sigma, cutoff=self.cutoff, segment_fill=self.segment_fill)
+        check_finite("postprocess", sigma=self.sigma, cutoff=self.cutoff, segment_fill=self.segment_fill,
+                     temporal_weight=self.temporal_weight)
+        if not 0.0 <= self.temporal_weight <= 1.0:
+            raise ConfigError(f"postprocess temporal_weight must be in [0, 1] (0 = off), got {self.temporal_weight}")
         if not 0.0 <= self.segment_fill <= 1.0:
             raise ConfigError(f"postprocess segment_fill must be in [0, 1] (0 = off), got {self.segment_fill}")
         if isinstance(self.min_region_pixels, bool) or not isinstance(self.min_region_pixels, int) \

@@ -27,6 +27,7 @@ from ros2_mos.projection import RangeImage, check_points, finite_mask, project
 from ros2_mos.residuals import relative_pose, residual_images, transform_points
 from ros2_mos.segments import drop_small_regions, fill_segments
 from ros2_mos.sensor_check import mismatch_message
+from ros2_mos.temporal import BeliefFilter
 
 #: Above this share of points outside the sensor's vertical field of view or range limits, the
 #: cloud does not fit the configured sensor (another beam layout): its labels are flagged degraded.
@@ -117,6 +118,7 @@ class MosPipeline:
         self.stds = np.asarray(meta.stds, np.float32)
         self.odometry = KissIcpOdometry(config.odometry)
         self.buffer = ScanBuffer(self.setup.history)
+        self.belief = BeliefFilter(self.sensor, config.postprocess.temporal_weight)
         # Past scans are re-projected in parallel (numpy releases the GIL in its ufuncs).
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mos-residuals") if self.n_past > 1 else None
         self._last_stamp: float | None = None
@@ -141,6 +143,7 @@ class MosPipeline:
     def reset(self) -> None:
         """Forget past scans and the odometry map (time went backwards, odometry failed, ...)."""
         self.buffer.clear()
+        self.belief.reset()
         self.odometry.reset()
         self._last_stamp = None
         self._last_pose = None
@@ -210,6 +213,7 @@ class MosPipeline:
                 warnings.append(f"pose jumped {jump:.1f} m since the last scan (limit {limit:.1f} m): "
                                 "odometry suspect, buffer reset")
                 self.buffer.clear()
+                self.belief.reset()
                 reset = True
         watch.lap("odometry")
 
@@ -245,6 +249,9 @@ class MosPipeline:
         # vote's "does this window mix both labels" test fire for nothing (~15 ms per scan with the shipped model).
         np.multiply(prob_image, image.mask, out=prob_image)
         watch.lap("inference")
+
+        prob_image = self.belief.fuse(prob_image, image, pose)
+        watch.lap("temporal")
 
         if self._min_region_pixels > 1:
             prob_image = drop_small_regions(prob_image, image.range, self.threshold, self._min_region_pixels)

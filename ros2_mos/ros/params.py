@@ -92,6 +92,9 @@ PARAMS: tuple[ParamSpec, ...] = (
               "connected moving range-image regions smaller than this (pixels of a 64 x 2048 image, scaled for "
               "others) are labelled static; 0 = off",
               min=0, max=10000),
+    ParamSpec("postprocess.temporal_weight", _DEF_POST.temporal_weight,
+              "temporal fusion: share of the last scan's moving belief (log-odds) at the same surface carried into "
+              "this scan's; 0 = off", min=0.0, max=1.0),
     ParamSpec("odometry.max_range", _DEF_ODOM.max_range, "KISS-ICP: ignore points beyond (m)", min=0.0),
     ParamSpec("odometry.min_range", _DEF_ODOM.min_range, "KISS-ICP: ignore points closer than (m)", min=0.0),
     ParamSpec("odometry.voxel_size", 0.0, "KISS-ICP voxel size (m); 0 = max_range / 100", min=0.0),
