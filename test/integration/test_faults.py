@@ -194,7 +194,7 @@ def test_clouds_that_do_not_fit_the_sensor_are_processed_and_flagged(harness, se
     rng = np.random.default_rng(7)
     n = 30000
     az, el = rng.uniform(-np.pi, np.pi, n), np.deg2rad(rng.choice(np.linspace(-45, 45, 128), n))
-    r = rng.uniform(3, 40, n)
+    r = 20.0 + 15.0 * np.sin(2.0 * az) * np.cos(el)  # a surface: scattered ranges are no LiDAR scan
     wide = np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)])
     above = wide.copy()
     above[:, 2] = np.abs(above[:, 2]) + 20.0  # every point above the 32-beam field of view
