@@ -13,6 +13,10 @@ class ScanError(MosError, ValueError):
     """A scan is malformed: wrong shape, empty, or without any finite point."""
 
 
+class ImplausibleScanError(ScanError):
+    """A well-formed cloud that is no LiDAR scan (points scattered through a volume): refused before odometry."""
+
+
 class ConfigError(MosError, ValueError):
     """A configuration value is invalid (unknown preset, negative range, N < 0, ...)."""
 

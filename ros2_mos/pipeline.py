@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ros2_mos.config import MosConfig, SensorConfig
-from ros2_mos.errors import ConfigError, ScanError
+from ros2_mos.errors import ConfigError, ImplausibleScanError, ScanError
 from ros2_mos.features import assemble_input
 from ros2_mos.inference import MosModel, default_model_path, shipped_models
 from ros2_mos.memory import retain_freed_memory
@@ -26,7 +26,7 @@ from ros2_mos.postprocess import backproject
 from ros2_mos.projection import RangeImage, check_points, finite_mask, project
 from ros2_mos.residuals import relative_pose, residual_images, transform_points
 from ros2_mos.segments import drop_small_regions, fill_segments
-from ros2_mos.sensor_check import mismatch_message
+from ros2_mos.sensor_check import implausible_message, mismatch_message
 from ros2_mos.temporal import BeliefFilter
 
 #: Above this share of points outside the sensor's vertical field of view or range limits, the
@@ -79,8 +79,9 @@ class _Stopwatch:
         self._start = self._last = time.perf_counter()
 
     def lap(self, stage: str) -> None:
+        """Time since the last lap, added to ``stage`` (a stage may be timed in parts)."""
         now = time.perf_counter()
-        self.timings[stage] = (now - self._last) * 1e3
+        self.timings[stage] = self.timings.get(stage, 0.0) + (now - self._last) * 1e3
         self._last = now
 
     def total(self) -> None:
@@ -155,7 +156,9 @@ class MosPipeline:
         """Label one scan. ``pose`` (4x4 world pose) skips the odometry, e.g. with a dataset's poses.
 
         Non-finite and zero-range points are left out and marked invalid; a scan with no
-        usable point, or of the wrong shape, raises :class:`ScanError`.
+        usable point, or of the wrong shape, raises :class:`ScanError`; a cloud whose range image
+        is no scan of surfaces (:func:`~ros2_mos.sensor_check.implausible_message`) raises
+        :class:`ImplausibleScanError` before the odometry sees it, and leaves the pipeline as it was.
         """
         watch = _Stopwatch()
         pts = check_points(points)
@@ -176,6 +179,15 @@ class MosPipeline:
             kept = np.flatnonzero(valid)
             xyz = np.take(pts, kept, axis=0).astype(np.float32, copy=False)  # a row gather, not a 2-D mask
             e = np.nan_to_num(rem[kept], nan=0.0, posinf=0.0, neginf=0.0)
+        watch.lap("validate")
+
+        # The projection needs no pose: done first, its range image tells a scan from scattered points before
+        # KISS-ICP spends seconds on them (issue 13) and before any state (buffer, odometry map) changes.
+        image = project(xyz, e, self.sensor)
+        watch.lap("projection")
+        implausible = implausible_message(image.range)
+        if implausible is not None:
+            raise ImplausibleScanError(implausible)
 
         warnings: list[str] = []
         reset = False
@@ -190,6 +202,11 @@ class MosPipeline:
             reset = True
         if self._sensor_mismatch is None:  # the first scan of a stream: is it the configured sensor at all?
             self._sensor_mismatch = mismatch_message(xyz, self.sensor) or ""
+        outside = 1.0 - float(image.pixels.in_image.mean())
+        if outside > MAX_OUTSIDE_FRACTION:
+            warnings.append(f"{outside:.0%} of the points fall outside the {self.sensor.name} field of view or range "
+                            "(they take the nearest edge pixel's label): does the sensor configuration match the "
+                            "cloud?")
         watch.lap("validate")
 
         if pose is None:
@@ -216,14 +233,6 @@ class MosPipeline:
                 self.belief.reset()
                 reset = True
         watch.lap("odometry")
-
-        image = project(xyz, e, self.sensor)
-        outside = 1.0 - float(image.pixels.in_image.mean())
-        if outside > MAX_OUTSIDE_FRACTION:
-            warnings.append(f"{outside:.0%} of the points fall outside the {self.sensor.name} field of view or range "
-                            "(they take the nearest edge pixel's label): does the sensor configuration match the "
-                            "cloud?")
-        watch.lap("projection")
 
         past = self.buffer.newest_first()
         if self.setup.kind == "residual" and self._torch is not None:

@@ -1,4 +1,5 @@
 """Does a cloud come from the configured sensor?  Rings and vertical field of view, from the points alone.
+And is it a LiDAR scan at all?  Neighbouring pixels of its range image, from the image alone.
 
 A rotating LiDAR's points lie on a few cones: every laser has its own fixed elevation, so within a
 narrow azimuth wedge the points' elevation angles (as seen from the sensor) fall into one tight
@@ -28,6 +29,17 @@ FOV_TOLERANCE_DEG = 3.0
 MAX_OUTSIDE_SHARE = 0.25
 #: Fewer points than this give no reliable verdict (a cropped or filtered cloud): no check.
 MIN_POINTS = 2000
+
+#: Plausibility (:func:`implausible_message`): two horizontally adjacent pixels of the range image "agree" when
+#: their ranges differ by at most this share of the smaller one.  A LiDAR sees surfaces, so most neighbours agree:
+#: >= 94 % of them in 64 real KITTI HDL-64E scans, >= 96 % in simulated scans of every preset, still 64 % in a real
+#: scan voxel-filtered at 0.5 m, 70 % in the tests' hand-made street; uniformly random points (a cube, a Gaussian
+#: blob, in any preset's image) agree at 6-13 %, by chance.
+NEIGHBOUR_RANGE_STEP = 0.05
+#: A range image in which fewer neighbours than this share agree is not a scan of surfaces: the cloud is refused.
+MIN_AGREEING_NEIGHBOURS = 0.35
+#: Fewer adjacent pairs of occupied pixels than this give no verdict (a tiny, sparse or foreign-layout cloud).
+MIN_NEIGHBOUR_PAIRS = 500
 
 
 @dataclass(frozen=True)
@@ -128,3 +140,31 @@ def mismatch_message(points: np.ndarray, sensor: SensorConfig) -> str | None:
             "it matches no known preset: set sensor.preset to custom with its sensor.* values")
     return (f"the cloud does not fit the configured sensor {sensor.name} ({sensor.height} rows, "
             f"{sensor.fov_down_deg:+.1f}..{sensor.fov_up_deg:+.1f} deg): it has {shape.describe()}; {hint}")
+
+
+def neighbour_agreement(range_image: np.ndarray) -> tuple[float, int]:
+    """Share of horizontally adjacent occupied pixel pairs whose ranges agree (``NEIGHBOUR_RANGE_STEP``), and
+    how many pairs there are.  O(H x W), ~0.4 ms on a 64 x 2048 image."""
+    image = np.asarray(range_image, np.float32)
+    right, left = image[:, 1:], image[:, :-1]
+    both = (right > 0) & (left > 0)  # 0 = empty pixel
+    pairs = int(np.count_nonzero(both))
+    if pairs == 0:
+        return 1.0, 0
+    agree = np.abs(right - left) <= np.float32(NEIGHBOUR_RANGE_STEP) * np.minimum(right, left)
+    return np.count_nonzero(agree & both) / pairs, pairs
+
+
+def implausible_message(range_image: np.ndarray) -> str | None:
+    """None when the range image looks like a scan of surfaces (or is too sparse to tell); else one line why not.
+
+    A rotating LiDAR's neighbouring beams hit the same wall, road or car, so adjacent pixels of its range
+    image have nearly the same range; points scattered through a volume (uniform random noise, a broken
+    driver) do not.  Such a cloud is no scan to label, and it can hold KISS-ICP for seconds (issue 13).
+    """
+    share, pairs = neighbour_agreement(range_image)
+    if pairs < MIN_NEIGHBOUR_PAIRS or share >= MIN_AGREEING_NEIGHBOURS:
+        return None
+    return (f"not a plausible LiDAR scan: only {share:.0%} of {pairs} pairs of adjacent range-image pixels are within "
+            f"{NEIGHBOUR_RANGE_STEP:.0%} in range (a scan of surfaces: over {MIN_AGREEING_NEIGHBOURS:.0%}; scattered "
+            "points such as uniform random noise: ~10%)")

@@ -6,7 +6,7 @@ from conftest import TEST_SENSOR, make_threshold_model, make_wrong_channels_mode
 from scenes import street_sequence
 
 from ros2_mos.config import MosConfig, OdometryConfig, PostprocessConfig, SensorConfig
-from ros2_mos.errors import ConfigError, ModelError, ScanError
+from ros2_mos.errors import ConfigError, ImplausibleScanError, ModelError, ScanError
 from ros2_mos.inference import MosModel
 from ros2_mos.metrics import MovingIoU
 from ros2_mos.pipeline import MosPipeline
@@ -222,7 +222,7 @@ def test_cloud_of_another_beam_layout_is_labelled_but_flagged_degraded(pipeline)
     rng = np.random.default_rng(3)
     n = 20000
     az, el = rng.uniform(-np.pi, np.pi, n), np.deg2rad(rng.choice(np.linspace(-45, 45, 128), n))
-    r = rng.uniform(3, 40, n)
+    r = 20.0 + 15.0 * np.sin(2.0 * az) * np.cos(el)  # a surface: scattered ranges are no LiDAR scan
     pts = np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)]).astype(np.float32)
     res = pipeline.process(pts, None, 0.0, pose=np.eye(4))
     assert res.valid.all() and res.labels.shape == (n,) and np.isfinite(res.probability).all()
@@ -230,6 +230,24 @@ def test_cloud_of_another_beam_layout_is_labelled_but_flagged_degraded(pipeline)
     # The street scene fits the sensor (a few points above/below the fov): no such warning.
     scene, rem, _, pose = street_sequence(1)[0]
     assert not any("field of view" in w for w in pipeline.process(scene, rem, 0.1, pose=pose).warnings)
+
+
+def test_scattered_points_are_refused_before_the_odometry_and_leave_no_trace(pipeline, monkeypatch):
+    """Issue 13: 127k uniform random points held KISS-ICP for 9-18 s. The range image refuses them first."""
+    scans = street_sequence(3)
+    for i in range(2):
+        pipeline.process(*scans[i][:2], 0.1 * i)
+    cube = np.random.default_rng(0).uniform(-30, 30, (60_000, 3)).astype(np.float32)
+    seen = []
+    monkeypatch.setattr(pipeline.odometry, "estimate", lambda points, *a: seen.append(len(points)))
+    with pytest.raises(ImplausibleScanError, match=r"^not a plausible LiDAR scan: only \d+% of \d+ pairs of adjacent "
+                       r"range-image pixels are within 5% in range \(a scan of surfaces: over 35%"):
+        pipeline.process(cube, None, 0.15)
+    assert seen == []  # KISS-ICP never saw the cloud, so it is not in its map either
+    monkeypatch.undo()
+    # Nothing changed: the stream goes on with its past (no reset, no "time went backwards" for 0.15 -> 0.2).
+    res = pipeline.process(*scans[2][:2], 0.2)
+    assert res.n_past_available == 2 and not res.reset and not res.warnings, res.warnings
 
 
 def test_pose_jump_limit_grows_with_the_time_since_the_last_scan(pipeline):

@@ -184,6 +184,13 @@ def test_processor_outputs_and_skips(tiny_model_path):
     with pytest.raises(SkippedScan, match="65537 points, more than 4 per pixel") as info:
         proc.process(huge)
     assert info.value.reason == "too_many_points"
+    # Points scattered through a volume are no LiDAR scan: skipped, with the reason, before the odometry.
+    scattered = np.random.default_rng(0).uniform(-30, 30, (60_000, 3)).astype(np.float32)
+    cube = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18 + 11 * 10**8 + 2, "v")), scattered, None,
+                     field_factory=types.point_field)
+    with pytest.raises(SkippedScan, match=r"^cloud at 1000000001\.100 s is not a plausible LiDAR scan: only ") as info:
+        proc.process(cube)
+    assert info.value.reason == "implausible_scan" and str(info.value).endswith(": skipped")
     broken = fill_xyzi(m.empty_cloud(types, m.make_header(types, 10**18 + 12 * 10**8, "v")), *seq[0][:2],
                        field_factory=types.point_field)
     broken.row_step = 3

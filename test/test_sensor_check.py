@@ -4,17 +4,30 @@ import numpy as np
 import pytest
 
 from ros2_mos.config import SENSOR_PRESETS, MosConfig
-from ros2_mos.sensor_check import closest_preset, cloud_shape, fits, mismatch_message
+from ros2_mos.projection import project
+from ros2_mos.sensor_check import (
+    MIN_AGREEING_NEIGHBOURS,
+    MIN_NEIGHBOUR_PAIRS,
+    closest_preset,
+    cloud_shape,
+    fits,
+    implausible_message,
+    mismatch_message,
+    neighbour_agreement,
+)
+from ros2_mos.sim import SequenceSimulator
 from ros2_mos.sim.lidar import beam_elevations, column_azimuths
 
 
 def rings_cloud(name: str, seed: int = 0, dropout: float = 0.3) -> np.ndarray:
-    """One sweep of preset ``name``: every beam at every column, random ranges 3-60 m, some rays lost (sky)."""
+    """One sweep of preset ``name``: every beam at every column, ranges 5-55 m on a smooth surface (a LiDAR sees
+    surfaces: ranges scattered at random are refused, see test_scattered_points_are_no_lidar_scan), some rays lost
+    (sky)."""
     sensor = SENSOR_PRESETS[name]
     rng = np.random.default_rng(seed)
     el = np.repeat(beam_elevations(sensor), sensor.width)
     az = np.tile(column_azimuths(sensor), sensor.height)
-    r = rng.uniform(3.0, 60.0, len(el))
+    r = 30.0 + 25.0 * np.sin(3.0 * az + rng.uniform(0, 2 * np.pi)) * np.cos(el)
     keep = rng.random(len(el)) > dropout
     pts = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], 1)[keep]
     return pts.astype(np.float32)
@@ -73,7 +86,44 @@ def test_the_pipeline_flags_every_scan_of_a_mismatched_stream(tiny_model_path):
     own = SensorConfig("test32", 32, 512, 10.0, -20.0, 0.0, 100.0)
     el = np.repeat(np.linspace(np.radians(9.5), np.radians(-19.5), 32), 512)
     az = np.tile(np.linspace(np.pi, -np.pi, 512, endpoint=False), 32)
-    r = np.random.default_rng(3).uniform(3, 50, len(el))
+    r = 25.0 + 20.0 * np.sin(2.0 * az) * np.cos(el)  # a smooth surface
     cloud = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], 1)
     own_pipeline = MosPipeline(MosConfig(model=str(tiny_model_path), sensor=own))
     assert own_pipeline.process(cloud, None, 0.0).sensor_mismatch == ""
+
+
+# ----------------------------------------------------------------------------- a LiDAR scan at all? (issue 13)
+
+def _range_image(points: np.ndarray, name: str) -> np.ndarray:
+    return project(points, np.zeros(len(points), np.float32), SENSOR_PRESETS[name]).range
+
+
+@pytest.mark.parametrize("name", sorted(SENSOR_PRESETS))
+def test_simulated_scans_of_every_preset_are_plausible_in_every_presets_image(name):
+    points = SequenceSimulator(1, "benchmark", seed=4, sensor=name).scan(0).scan.points
+    share, pairs = neighbour_agreement(_range_image(points, name))
+    assert share > 0.9 and pairs > 10 * MIN_NEIGHBOUR_PAIRS, (share, pairs)
+    # A cloud of another sensor is flagged as a mismatch (above), never refused as no scan.
+    for other in SENSOR_PRESETS:
+        assert implausible_message(_range_image(points, other)) is None, other
+
+
+@pytest.mark.parametrize("name", sorted(SENSOR_PRESETS))
+def test_scattered_points_are_no_lidar_scan(name):
+    rng = np.random.default_rng(0)
+    cube = rng.uniform(-50, 50, (127_000, 3)).astype(np.float32)  # issue 13: KISS-ICP spent 9-18 s on it
+    blob = rng.normal(scale=10.0, size=(127_000, 3)).astype(np.float32)
+    for cloud in (cube, blob, cube * np.float32([1, 1, 0.05])):  # also flattened into the field of view
+        share, pairs = neighbour_agreement(_range_image(cloud, name))
+        assert share < MIN_AGREEING_NEIGHBOURS / 2 and pairs >= MIN_NEIGHBOUR_PAIRS, (share, pairs)
+        assert implausible_message(_range_image(cloud, name)).startswith("not a plausible LiDAR scan: only ")
+    # Too few scattered points to tell: no verdict (they are cheap for the odometry anyway).
+    assert implausible_message(_range_image(cube[:3000], name)) is None
+
+
+def test_the_reason_says_what_was_measured_and_what_a_scan_looks_like():
+    cube = np.random.default_rng(0).uniform(-50, 50, (127_000, 3)).astype(np.float32)
+    assert implausible_message(_range_image(cube, "hdl64")) == (
+        "not a plausible LiDAR scan: only 13% of 4427 pairs of adjacent range-image pixels are within 5% in range "
+        "(a scan of surfaces: over 35%; scattered points such as uniform random noise: ~10%)")
+    assert neighbour_agreement(np.zeros((4, 8), np.float32)) == (1.0, 0)  # an empty image: nothing to judge

@@ -3,7 +3,7 @@
 Everything between decoding the input and having the messages to publish lives
 here, so the live node and the offline bag processing cannot disagree. It also
 owns the input policy: which clouds are skipped (bad layout, too few finite
-points, a duplicate stamp) and when the scan buffer is reset (a gap in the
+points, a duplicate stamp, no plausible LiDAR scan) and when the scan buffer is reset (a gap in the
 stream; time going backwards and pose jumps are handled by the pipeline).
 Skips raise :class:`~ros2_mos.errors.ScanError` with the reason; the caller
 logs it and carries on.
@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ros2_mos.errors import ScanError
+from ros2_mos.errors import ImplausibleScanError, ScanError
 from ros2_mos.pipeline import MosPipeline, MosResult
 from ros2_mos.pointcloud2 import decode_xyz_intensity, view_cloud
 from ros2_mos.ros import messages as m
@@ -25,7 +25,8 @@ from ros2_mos.ros.params import NodeSettings
 
 
 class SkippedScan(ScanError):
-    """A cloud was well-formed but not usable (too few points, duplicate stamp); ``reason`` is a short key."""
+    """A cloud was well-formed but not usable (too few points, duplicate stamp, no plausible scan); ``reason`` is a
+    short key."""
 
     def __init__(self, reason: str, message: str) -> None:
         super().__init__(message)
@@ -105,7 +106,10 @@ class ScanProcessor:
                 self.pipeline.reset()
                 notes.append(f"{gap:.2f} s since the last scan (> reset_after_gap): scan buffer reset")
                 reset = True
-        result = self.pipeline.process(points, intensity, stamp * 1e-9)
+        try:
+            result = self.pipeline.process(points, intensity, stamp * 1e-9)
+        except ImplausibleScanError as exc:
+            raise SkippedScan("implausible_scan", f"cloud at {stamp * 1e-9:.3f} s is {exc}: skipped") from None
         self._last_stamp = stamp
         notes.extend(result.warnings)
         reset = reset or result.reset

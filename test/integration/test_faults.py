@@ -194,7 +194,7 @@ def test_clouds_that_do_not_fit_the_sensor_are_processed_and_flagged(harness, se
     rng = np.random.default_rng(7)
     n = 30000
     az, el = rng.uniform(-np.pi, np.pi, n), np.deg2rad(rng.choice(np.linspace(-45, 45, 128), n))
-    r = rng.uniform(3, 40, n)
+    r = 20.0 + 15.0 * np.sin(2.0 * az) * np.cos(el)  # a surface: scattered ranges are no LiDAR scan
     wide = np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)])
     above = wide.copy()
     above[:, 2] = np.abs(above[:, 2]) + 20.0  # every point above the 32-beam field of view
@@ -206,6 +206,55 @@ def test_clouds_that_do_not_fit_the_sensor_are_processed_and_flagged(harness, se
         assert last.result.degraded and any("field of view" in note for note in last.notes), last.notes
     assert harness.node.stats.snapshot().errors == errors
     assert harness.feed(cloud(stamp + 2 * PERIOD, *sequence[0][:2])) is not None
+
+
+def test_scattered_points_are_skipped_and_a_slow_registration_keeps_the_diagnostics_alive(harness, sequence):
+    """Issue 13: a cloud of uniform random points held KISS-ICP for 9-18 s, and the diagnostics with it.
+
+    Refused first, from its range image, counted under its reason. Forced through (check off), its slow
+    registration runs in slices, so the diagnostics timer (period 0.2 s here) keeps publishing meanwhile.
+    """
+    import time
+
+    import ros2_mos.pipeline as pipeline_module
+
+    harness.node.processor.reset()
+    stamp = BASE_STAMP + 25 * 10**12
+    for i in range(3):
+        assert harness.feed(cloud(stamp + i * PERIOD, *sequence[i][:2])) is not None
+    scattered = np.random.default_rng(0).uniform(-30, 30, (60_000, 3)).astype(np.float32)
+    before = harness.node.stats.snapshot()
+    assert harness.feed(cloud(stamp + 3 * PERIOD, scattered)) is None
+    snap = harness.node.stats.snapshot()
+    assert snap.skipped.get("implausible_scan", 0) == before.skipped.get("implausible_scan", 0) + 1
+    assert "is not a plausible LiDAR scan: only" in snap.last_warning and snap.errors == before.errors
+    start = len(harness.received["diag"])
+    diag = _wait_diag(harness, lambda level, message, values: "skipped.implausible_scan" in values, start, 5)
+    assert diag is not None and int(diag[2]["skipped.implausible_scan"]) >= 1
+    assert harness.feed(cloud(stamp + 4 * PERIOD, *sequence[3][:2])) is not None
+    assert harness.node._last_output.result.n_past_available == 2  # the skipped cloud left the stream as it was
+
+    arrivals: list[float] = []
+    listener = harness.peer.create_subscription(TYPES.diagnostic_array, "/diagnostics",
+                                                lambda msg: arrivals.append(time.monotonic()), 10)
+    real_check = pipeline_module.implausible_message
+    pipeline_module.implausible_message = lambda image: None  # let it through to KISS-ICP (~4 s of ICP here)
+    try:
+        time.sleep(0.5)  # the listener is matched and hears the timer
+        started = time.monotonic()
+        harness.feed(cloud(stamp + 5 * PERIOD, scattered), timeout=60)
+        finished = time.monotonic()
+    finally:
+        pipeline_module.implausible_message = real_check
+        harness.peer.destroy_subscription(listener)
+        harness.node.processor.reset()  # its points are in the odometry map now
+    odometry_s = harness.node.stats.snapshot().stage_ms["odometry"][1] * 1e-3
+    if odometry_s < 1.0:
+        pytest.skip(f"the forced registration took only {odometry_s:.2f} s here: too fast to show a stall")
+    during = [t for t in arrivals if started <= t <= finished]
+    gaps = np.diff([started, *during, finished])
+    # One uninterrupted KISS-ICP call held the GIL, so no diagnostics, for the whole registration.
+    assert gaps.max() < min(1.0, odometry_s / 2), (gaps.max(), odometry_s, len(during))
 
 
 # ----------------------------------------------------------------------------- hostile PointCloud2 to the node
