@@ -199,12 +199,11 @@ class OdometryConfig:
     max_range: float = 100.0
     min_range: float = 0.0
     voxel_size: float | None = None
-    # KISS-ICP's cap on map points per voxel (its default is 20). Registration cost grows with it;
-    # 10 was ~40% faster and more accurate on the 9 simulated sequences (README, Speed).
+    # KISS-ICP's cap on map points per voxel (its default is 20). Registration cost grows with it
+    # (measured: README, Speed).
     max_points_per_voxel: int = 10
     # KISS-ICP sees every k-th point of the scan: it voxelises them at 0.5 m and registers ~2.5k
-    # points anyway, so half a 120k-point scan covers the same voxels. Measured on the 9 simulated
-    # sequences x 200 scans: 29.2 -> 25.2 ms per scan, t_err 0.75 -> 0.66 %, ATE 0.160 -> 0.146 m.
+    # points anyway, so half a 120k-point scan covers the same voxels (measured: README, Speed).
     point_stride: int = 2
     deskew: bool = False
     # A relative motion larger than this per 0.1 s (one scan at 10 Hz; 50 m/s) is treated as a
@@ -255,7 +254,7 @@ class MosConfig:
     # ``device`` ('auto' = CUDA when present) -- on a GPU these, not the CNN, dominate.
     geometry_backend: str = "numpy"
     device: str = "auto"
-    # Keep freed heap blocks mapped (glibc mallopt, process-wide): see ros2_mos.memory; ~7 ms per scan.
+    # Keep freed heap blocks mapped (glibc mallopt, process-wide): see ros2_mos.memory (its cost: README, Speed).
     tune_malloc: bool = True
 
     def __post_init__(self) -> None:

@@ -25,9 +25,8 @@ from ros2_mos.config import OdometryConfig
 from ros2_mos.errors import ConfigError
 
 #: ICP iterations of the first call into KISS-ICP, then of each further call; other threads get the GIL between
-#: calls. KISS-ICP converged in 14 iterations (median; 90th percentile 19 and 29, at most 24 and 56) on 32 real
-#: KITTI and 40 simulated HDL-64E scans, ~1-3 ms each: nearly every scan is done in the first call.  One that
-#: is not runs on in short slices, up to KISS-ICP's own cap (500 iterations) as before.
+#: calls. Nearly every scan converges within the first call (iteration counts: benchmarks/reliability.md, round 4,
+#: item 8); one that does not runs on in short slices, up to KISS-ICP's own cap (500 iterations) as before.
 ICP_FIRST_SLICE = 32
 ICP_SLICE = 8
 
