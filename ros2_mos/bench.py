@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-STAGES = ("decode", "validate", "odometry", "projection", "residuals", "inference", "postprocess", "map_update",
-          "encode")
+STAGES = ("decode", "validate", "odometry", "projection", "residuals", "inference", "temporal", "postprocess",
+          "map_update", "encode")
 
 
 @dataclass
