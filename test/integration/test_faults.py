@@ -253,8 +253,9 @@ def test_scattered_points_are_skipped_and_a_slow_registration_keeps_the_diagnost
         pytest.skip(f"the forced registration took only {odometry_s:.2f} s here: too fast to show a stall")
     during = [t for t in arrivals if started <= t <= finished]
     gaps = np.diff([started, *during, finished])
-    # One uninterrupted KISS-ICP call held the GIL, so no diagnostics, for the whole registration.
-    assert gaps.max() < min(1.0, odometry_s / 2), (gaps.max(), odometry_s, len(during))
+    # One uninterrupted KISS-ICP call held the GIL, so no diagnostics, for the whole registration. In slices the
+    # 0.2 s timer gets through several times (the bound leaves room for a loaded 2-core machine).
+    assert len(during) >= 2 and gaps.max() < min(1.5, 0.75 * odometry_s), (gaps.max(), odometry_s, len(during))
 
 
 # ----------------------------------------------------------------------------- hostile PointCloud2 to the node
