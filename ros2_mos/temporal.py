@@ -48,7 +48,11 @@ def sigmoid(b: np.ndarray) -> np.ndarray:
 
 
 class BeliefFilter:
-    """The fusion stage: :meth:`fuse` one scan's probability image with the last scan's belief."""
+    """The fusion stage: :meth:`fuse` one scan's probability image with the last scan's belief.
+
+    The belief is kept as a probability image (``sigmoid(b)``): only the candidate pixels are ever converted to
+    log-odds, so the stage costs in proportion to them, not to the image.
+    """
 
     def __init__(self, sensor: SensorConfig, weight: float) -> None:
         if not 0.0 <= weight <= 1.0:
@@ -56,30 +60,30 @@ class BeliefFilter:
         self.sensor = sensor
         self.weight = float(weight)
         self._range: np.ndarray | None = None  # (H, W) previous range image
-        self._belief: np.ndarray | None = None  # (H, W) previous log-odds
+        self._probability: np.ndarray | None = None  # (H, W) previous fused probability, sigmoid(b_{t-1})
         self._pose: np.ndarray | None = None
 
     def reset(self) -> None:
-        self._range = self._belief = self._pose = None
+        self._range = self._probability = self._pose = None
 
     def fuse(self, probability: np.ndarray, image: RangeImage, pose: np.ndarray) -> np.ndarray:
-        """The fused (H, W) moving probability of this scan; remembers its belief for the next one."""
+        """The fused (H, W) moving probability of this scan; remembers it for the next one."""
         if self.weight == 0.0:
             return probability
-        belief = logit(probability)
-        if self._belief is not None:
+        fused = probability
+        if self._probability is not None:
             rows, cols = np.nonzero((probability >= CANDIDATE_PROBABILITY) & image.mask)
             if len(rows):
                 prior = self.prior(image.xyz[rows, cols], image.range[rows, cols], pose)
-                belief[rows, cols] = np.clip(belief[rows, cols] + self.weight * prior, -MAX_BELIEF, MAX_BELIEF)
-        self._range, self._belief, self._pose = image.range, belief, np.asarray(pose, np.float64)
-        fused = sigmoid(belief)
-        fused *= image.mask  # no point, no probability
+                belief = np.clip(logit(probability[rows, cols]) + self.weight * prior, -MAX_BELIEF, MAX_BELIEF)
+                fused = probability.copy()
+                fused[rows, cols] = sigmoid(belief)
+        self._range, self._probability, self._pose = image.range, fused, np.asarray(pose, np.float64)
         return fused
 
     def prior(self, xyz: np.ndarray, ranges: np.ndarray, pose: np.ndarray) -> np.ndarray:
-        """The previous belief of the surface each point (current frame) lies on; 0 where none matches."""
-        assert self._range is not None and self._belief is not None and self._pose is not None
+        """The previous belief (log-odds) of the surface each point (current frame) lies on; 0 where none matches."""
+        assert self._range is not None and self._probability is not None and self._pose is not None
         to_previous = relative_pose(self._pose, np.asarray(pose, np.float64)).astype(np.float32)
         x, y, z = (xyz @ to_previous[:3, :3].T + to_previous[:3, 3]).T
         pixels = pixel_index_columns(np.ascontiguousarray(x), np.ascontiguousarray(y), np.ascontiguousarray(z),
@@ -87,4 +91,4 @@ class BeliefFilter:
         previous_range = self._range[pixels.v, pixels.u]
         tolerance = np.maximum(MATCH_ABSOLUTE, MATCH_RELATIVE * ranges)
         same = pixels.in_image & (previous_range > 0) & (np.abs(pixels.range - previous_range) <= tolerance)
-        return np.where(same, self._belief[pixels.v, pixels.u], 0.0).astype(np.float32)
+        return np.where(same, logit(self._probability[pixels.v, pixels.u]), 0.0).astype(np.float32)

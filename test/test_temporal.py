@@ -42,7 +42,7 @@ def test_a_surface_long_called_static_damps_one_scan_of_moving():
     fusion = BeliefFilter(SENSOR, weight=0.5)
     identity = np.eye(4)
     first = image_of(wall(10.0))
-    fusion.fuse(probability_image(first, 0.001), first, identity)  # belief clipped to -4
+    fusion.fuse(probability_image(first, 0.001), first, identity)  # belief clipped to -4 when looked up
     second = image_of(wall(10.05))  # the same wall, 5 cm off (an odometry error)
     fused = fusion.fuse(probability_image(second, 0.6), second, identity)
     # logit(0.6) + 0.5 * (-4) = 0.405 - 2 = -1.595 -> p = 0.1687
@@ -84,7 +84,7 @@ def test_weight_zero_is_the_identity_and_keeps_no_state():
     image = image_of(wall(10.0))
     p = probability_image(image, 0.6)
     assert fusion.fuse(p, image, np.eye(4)) is p
-    assert fusion._belief is None
+    assert fusion._probability is None
 
 
 def test_a_reset_forgets_the_previous_scan():
