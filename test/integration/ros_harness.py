@@ -3,19 +3,23 @@
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 from collections import defaultdict
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from scenes import street_sequence  # noqa: E402  (test/ is on sys.path: see test/conftest.py)
 
 from ros2_mos.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
@@ -128,3 +132,41 @@ def running_harness(domain_id: int, overrides: dict[str, Any]) -> Iterator[Harne
     finally:
         h.close()
         rclpy.try_shutdown(context=context)
+
+
+def harness_fixture(domain_id: int, **overrides: Any) -> Any:
+    """A module-scoped ``harness`` fixture: the in-process node with the tiny model, diagnostics every 0.2 s."""
+
+    @pytest.fixture(scope="module")
+    def harness(tiny_model_path: Path) -> Iterator[Harness]:
+        with running_harness(domain_id, {"model": str(tiny_model_path), "diagnostics_period": 0.2, **overrides}) as h:
+            yield h
+
+    return harness
+
+
+def sequence_fixture(scans: int) -> Any:
+    """A module-scoped ``sequence`` fixture: a simulated street of ``scans`` scans (points, remission, ...)."""
+
+    @pytest.fixture(scope="module")
+    def sequence() -> list:
+        return street_sequence(scans)
+
+    return sequence
+
+
+def child_env(domain_id: int, large_messages: bool = False) -> dict[str, str]:
+    """The environment for a node process: the parent's (both bootstrap variables or neither, as it has them),
+    an isolated domain, unbuffered output, and with ``large_messages`` the shipped large-message Fast DDS profile."""
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    if large_messages:
+        from ros2_mos.ros.dds import use_large_message_profile
+
+        use_large_message_profile(env)
+    return env
+
+
+def executable(name: str) -> str:
+    """A console script of this environment (mos_node, ros2-mos)."""
+    return str(Path(sys.executable).parent / name)

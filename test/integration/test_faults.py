@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,8 +17,15 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from conftest import make_wrong_channels_model  # noqa: E402
-from ros_harness import BASE_STAMP, TYPES, cloud, running_harness  # noqa: E402
-from scenes import street_sequence  # noqa: E402
+from ros_harness import (  # noqa: E402
+    BASE_STAMP,
+    TYPES,
+    child_env,
+    cloud,
+    executable,
+    harness_fixture,
+    sequence_fixture,
+)
 
 from ros2_mos.errors import ScanError  # noqa: E402
 from ros2_mos.pointcloud2 import FLOAT32, INT16, MAX_FIELDS, MAX_POINT_STEP, decode_xyz_intensity  # noqa: E402
@@ -29,12 +34,6 @@ from ros2_mos.ros.node import STALE_AFTER_S  # noqa: E402
 
 DOMAIN = 45 + os.getpid() % 150 + 6  # apart from test_node's and test_soak's domains in the same run
 PERIOD = 100_000_000
-
-
-def _env(domain: int) -> dict[str, str]:
-    env = dict(os.environ)  # both bootstrap variables or neither, as this process has them
-    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
-    return env
 
 
 # ----------------------------------------------------------------------------- start-up of the process
@@ -52,8 +51,8 @@ def test_broken_models_and_mismatched_sensors_stop_the_process_with_a_clear_mess
                                    "-p", "sensor.height:=16", "-p", "sensor.width:=512"],
                                   "sensor custom projects to 16 x 512 but the model was trained for test32"),
     }
-    mos_node = str(Path(sys.executable).parent / "mos_node")
-    procs = {name: subprocess.Popen([mos_node, "--ros-args", *args], env=_env(DOMAIN + 1), stdout=subprocess.PIPE,
+    mos_node = executable("mos_node")
+    procs = {name: subprocess.Popen([mos_node, "--ros-args", *args], env=child_env(DOMAIN + 1), stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True)
              for name, (args, _) in cases.items()}  # in parallel: four interpreter start-ups cost one
     for name, proc in procs.items():
@@ -65,16 +64,8 @@ def test_broken_models_and_mismatched_sensors_stop_the_process_with_a_clear_mess
 
 # ----------------------------------------------------------------------------- in-process node
 
-@pytest.fixture(scope="module")
-def sequence():
-    return street_sequence(6)
-
-
-@pytest.fixture(scope="module")
-def harness(tiny_model_path):
-    with running_harness(DOMAIN, {"model": str(tiny_model_path), "diagnostics_period": 0.2,
-                                   "reset_after_gap": 1.0}) as h:
-        yield h
+sequence = sequence_fixture(6)
+harness = harness_fixture(DOMAIN, reset_after_gap=1.0)
 
 
 def _status(msg):

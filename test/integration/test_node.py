@@ -9,15 +9,23 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from ros_harness import BASE_STAMP, OUTPUTS, TYPES, cloud, isolate_ros, running_harness  # noqa: E402
-from scenes import street_sequence  # noqa: E402
+from ros_harness import (  # noqa: E402
+    BASE_STAMP,
+    OUTPUTS,
+    TYPES,
+    child_env,
+    cloud,
+    executable,
+    harness_fixture,
+    isolate_ros,
+    sequence_fixture,
+)
 
 from ros2_mos.config import MosConfig  # noqa: E402
 from ros2_mos.pipeline import MosPipeline  # noqa: E402
@@ -28,16 +36,8 @@ DOMAIN = 40 + os.getpid() % 150
 PERIOD = 100_000_000  # 10 Hz
 
 
-@pytest.fixture(scope="module")
-def sequence():
-    return street_sequence(6)
-
-
-@pytest.fixture(scope="module")
-def harness(tiny_model_path):
-    with running_harness(DOMAIN, {"model": str(tiny_model_path), "diagnostics_period": 0.2,
-                                   "reset_after_gap": 5.0}) as h:
-        yield h
+sequence = sequence_fixture(6)
+harness = harness_fixture(DOMAIN, reset_after_gap=5.0)
 
 
 def test_outputs_stamps_frames_counts_and_offline_labels(harness, sequence, tiny_model_path):
@@ -246,21 +246,9 @@ def test_clouds_and_images_are_built_only_while_someone_subscribes(harness, sequ
 # ----------------------------------------------------------------------------- separate processes
 
 def _env(domain: int) -> dict[str, str]:
-    """The parent's environment (both or neither bootstrap variable, as it has them) plus isolation.
-
-    The child processes use the shipped large-message Fast DDS profile and the listener in this
-    process does not: the mixed setup users have when only some of their processes set it.
-    """
-    from ros2_mos.ros.dds import use_large_message_profile
-
-    env = dict(os.environ)
-    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
-    use_large_message_profile(env)
-    return env
-
-
-def _bin(name: str) -> str:
-    return str(Path(sys.executable).parent / name)
+    # The child processes use the shipped large-message Fast DDS profile and the listener in this
+    # process does not: the mixed setup users have when only some of their processes set it.
+    return child_env(domain, large_messages=True)
 
 
 def test_bad_parameter_is_rejected_at_start_up(tiny_model_path):
@@ -271,7 +259,7 @@ def test_bad_parameter_is_rejected_at_start_up(tiny_model_path):
                           [["-p", "log_period:=.inf"], "log_period out of range"],
                           [["--params-file", "/nonexistent/params.yaml"], "params file not found"],
                           [["-p", "bogus:=:=:"], "failed to initialize rcl"]):
-        cmd = [_bin("mos_node"), "--ros-args", "-p", f"model:={tiny_model_path}", *args]
+        cmd = [executable("mos_node"), "--ros-args", "-p", f"model:={tiny_model_path}", *args]
         done = subprocess.run(cmd, env=_env(DOMAIN + 1), capture_output=True, text=True, timeout=30)
         assert done.returncode == 1, (args, done.stderr)
         assert "cannot start" in done.stderr and message in done.stderr, done.stderr
@@ -289,7 +277,7 @@ def test_node_process_replay_and_listener(tmp_path, tiny_model_path, sequence):
     params.write_text(f"mos_node:\n  ros__parameters:\n    model: {tiny_model_path}\n"
                       "    qos:\n      reliability: reliable\n      depth: 5\n")
     started = time.monotonic()
-    node = subprocess.Popen([_bin("mos_node"), "--ros-args", "--params-file", str(params)], env=_env(domain),
+    node = subprocess.Popen([executable("mos_node"), "--ros-args", "--params-file", str(params)], env=_env(domain),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     context = None
     try:
@@ -321,7 +309,7 @@ def test_node_process_replay_and_listener(tmp_path, tiny_model_path, sequence):
         while listener.count_publishers("/mos/static_points") < 1 and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(0.5)
-        replay = subprocess.run([_bin("ros2-mos"), "replay", str(bag), "--sync", "/mos/static_points"],
+        replay = subprocess.run([executable("ros2-mos"), "replay", str(bag), "--sync", "/mos/static_points"],
                                 env=_env(domain), capture_output=True, text=True, timeout=60)
         assert replay.returncode == 0, replay.stderr
         assert f"published {len(sequence)} clouds" in replay.stdout
@@ -374,7 +362,7 @@ def test_node_does_not_import_torch_and_starts_fast(tiny_model_path):
 def test_ready_line_shows_remapped_topics_and_a_namesake_is_reported(tiny_model_path):
     """`-r /points:=/lidar/top` shows in the ready line; a second node of the same name warns about the first."""
     env = _env(DOMAIN + 4)
-    cmd = [_bin("mos_node"), "--ros-args", "-p", f"model:={tiny_model_path}", "-r", "/points:=/lidar/top",
+    cmd = [executable("mos_node"), "--ros-args", "-p", f"model:={tiny_model_path}", "-r", "/points:=/lidar/top",
            "-r", "/mos/labels:=/seg/labels"]
     nodes = [subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
              for _ in range(2)]
@@ -420,8 +408,8 @@ def test_node_and_commands_read_a_params_file_alike(tmp_path, tiny_model_path):
     with pytest.raises(ConfigError, match="no parameters for node 'mos_node'"):
         load_params_file(foreign)
     for path, ok in ((exponent, True), (foreign, False)):
-        node = subprocess.Popen([_bin("mos_node"), "--ros-args", "--params-file", str(path)], env=_env(DOMAIN + 3),
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        node = subprocess.Popen([executable("mos_node"), "--ros-args", "--params-file", str(path)],
+                                env=_env(DOMAIN + 3), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         lines: list[str] = []
         reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)
         reader.start()
