@@ -31,8 +31,8 @@ from ros2_mos.config import ResidualConfig, SensorConfig, sensor_preset
 from ros2_mos.datasets.semantic_kitti import sequence_dirs
 from ros2_mos.errors import ConfigError, DatasetError
 from ros2_mos.features import InputSetup
-from ros2_mos.labels import IGNORE
 from ros2_mos.metadata import ModelMetadata
+from ros2_mos.metrics import MovingIoU
 from ros2_mos.training.dataset import (
     AugmentConfig,
     CacheSpec,
@@ -238,11 +238,6 @@ class _Dist:
             dist.barrier()
 
 
-def moving_iou_from_counts(tp: int, fp: int, fn: int) -> float:
-    union = tp + fp + fn
-    return tp / union if union else float("nan")
-
-
 def lr_at(config: TrainConfig, epoch_float: float) -> float:
     """Linear warm-up over ``warmup_epochs``, then ``lr * lr_decay ** epoch`` (per-epoch steps)."""
     if config.warmup_epochs > 0 and epoch_float < config.warmup_epochs:
@@ -255,7 +250,7 @@ def evaluate_pixels(model: nn.Module, dataset: MosDataset, loss_fn: MosLoss | No
                     batch_size: int = 1, progress: Callable | None = None, workers: int = 0) -> tuple[float, float]:
     """Pixel-level moving IoU (and mean loss) of ``model`` on a dataset, full images, no augmentation."""
     model.eval()
-    tp = fp = fn = 0
+    score = MovingIoU()
     losses: list[float] = []
     loader = DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=workers)
     iterator = progress(loader) if progress else loader
@@ -264,13 +259,8 @@ def evaluate_pixels(model: nn.Module, dataset: MosDataset, loss_fn: MosLoss | No
         logits = model(x)
         if loss_fn is not None:
             losses.append(float(loss_fn(logits, y)[0]))
-        pred = logits.argmax(1) == 1
-        counted = y != IGNORE
-        gt = (y == 1) & counted
-        tp += int((pred & gt).sum())
-        fp += int((pred & ~gt & counted).sum())
-        fn += int((~pred & gt).sum())
-    return moving_iou_from_counts(tp, fp, fn), float(np.mean(losses)) if losses else float("nan")
+        score.update((logits.argmax(1) == 1).cpu().numpy(), y.cpu().numpy())
+    return score.iou, float(np.mean(losses)) if losses else float("nan")
 
 
 class Trainer:
