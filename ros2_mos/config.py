@@ -21,6 +21,34 @@ from ros2_mos.errors import ConfigError
 MAX_RANGE_LIMIT = 1000.0
 
 
+def read_yaml_mapping(path: str | Path, what: str, loader: Any = None) -> Mapping[str, Any]:
+    """The top-level mapping of a YAML file; every way it can fail is one :class:`ConfigError` line.
+
+    ``what`` names the file in the messages ("training config", "params file"); ``loader`` is a PyYAML
+    loader class (default: the safe loader). An empty file is an empty mapping.
+    """
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{what} not found: {path}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}); a {what} must be UTF-8 YAML") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the {what} ({exc.strerror})") from None
+    try:
+        data = yaml.load(text, Loader=loader or yaml.SafeLoader)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{path}: expected a mapping at the top level, got {type(data).__name__}")
+    return data
+
+
 def check_finite(what: str, **values: Any) -> None:
     """Every value a real, finite number (NaN, inf, bools and strings are refused with one clear line)."""
     for name, value in values.items():
@@ -294,16 +322,7 @@ class MosConfig:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "MosConfig":
-        import yaml
-
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"config file not found: {path}")
-        with path.open() as f:
-            data = yaml.safe_load(f) or {}
-        if not isinstance(data, Mapping):
-            raise ConfigError(f"{path}: expected a mapping at the top level")
-        return cls.from_dict(data)
+        return cls.from_dict(read_yaml_mapping(path, "config file"))
 
 
 def _from_mapping(cls: type, data: Mapping[str, Any], what: str, allow_objects: bool = False) -> Any:

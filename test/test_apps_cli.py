@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from apps_scenes import write_street_sequence
 from typer.testing import CliRunner
 
 from ros2_mos.cli import app
 from ros2_mos.datasets.semantic_kitti import read_poses
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = REPO / "configs" / "fastmos_vlp16.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -43,3 +48,25 @@ def test_map_writes_both_maps_the_png_and_reports_ghosts(street, tiny_model_path
     assert ghosts["raw"] > ghosts["cleaned"]
     bad = CliRunner().invoke(app, ["map", str(street), "--out", str(tmp_path / "m.obj")])
     assert bad.exit_code != 0 and ".ply or .pcd" in bad.output
+
+
+def test_outputs_that_cannot_be_written_fail_before_any_work(street, tmp_path):
+    """Issue 13.10: map, train and export checked their output paths only after all the work."""
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    cases = [
+        (["map", str(street), "--out", str(a_file / "m.ply")], f"--out {a_file / 'm_raw.ply'}: {a_file} is a file"),
+        (["map", str(street), "--out", str(tmp_path / "m.ply"), "--png", str(tmp_path)],
+         "is a folder; expected a file"),
+        (["export", str(REPO / "checkpoints/fastmos_beams_last.pt"), "--out", str(a_file / "m.onnx")],
+         f"{a_file} is a file"),
+        (["train", "--config", str(CONFIG), "--data", str(tmp_path / "none"), "--out", str(a_file)],
+         f"out_dir {a_file} is a file; expected a folder"),
+        (["train", "--config", str(CONFIG), "--data", str(tmp_path / "none"),
+          "--out", str(tmp_path / "run"), "--export", str(a_file / "m.onnx")], f"--export {a_file / 'm.onnx'}"),
+    ]
+    for args, message in cases:
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 1, (args, result.output)
+        assert message in result.output, (args, result.output)
+    assert not (tmp_path / "run").exists()  # nothing was started

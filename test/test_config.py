@@ -1,5 +1,7 @@
 """Configuration: presets, fov estimation, YAML round trip and rejection of bad values."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -58,3 +60,22 @@ def test_bad_yaml_values_are_rejected_with_the_key_named(tmp_path, text, message
 def test_missing_config_file(tmp_path):
     with pytest.raises(ConfigError, match="not found"):
         MosConfig.from_yaml(tmp_path / "none.yaml")
+
+
+def test_yaml_files_that_cannot_be_read_are_one_line_errors(tmp_path):
+    """Issue 13.10: non-UTF-8 or invalid YAML gave a traceback in train and in every --config."""
+    from ros2_mos.config import read_yaml_mapping
+
+    cases = {
+        "latin1.yaml": (b"name: caf\xe9\n", "not UTF-8 text (byte 9)"),
+        "broken.yaml": (b"name: [unclosed\n", "not valid YAML"),
+        "list.yaml": (b"- a\n- b\n", "expected a mapping at the top level, got list"),
+    }
+    for name, (content, message) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            read_yaml_mapping(tmp_path / name, "training config")
+    with pytest.raises(ConfigError, match="training config not found"):
+        read_yaml_mapping(tmp_path / "missing.yaml", "training config")
+    (tmp_path / "empty.yaml").write_bytes(b"")
+    assert read_yaml_mapping(tmp_path / "empty.yaml", "training config") == {}

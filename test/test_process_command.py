@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scenes import street_sequence
 from typer.testing import CliRunner
 
@@ -68,6 +69,23 @@ def test_damaged_bag_is_one_line_error_and_leaves_no_output(tmp_path, tiny_model
 
     assert isinstance(result.exception, DatasetError), result.exception
     assert "cannot open bag" in str(result.exception) and "magic" in str(result.exception)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+
+
+@pytest.mark.parametrize("damage", ["truncated", "zeroed"])
+def test_damaged_sqlite3_bag_is_one_line_error(tmp_path, tiny_model_path, damage):
+    from ros2_mos.errors import DatasetError
+
+    seq = street_sequence(3)
+    write_scans_bag(tmp_path / "in", iter([(STAMP0 + i * PERIOD, p, r) for i, (p, r, _, _) in enumerate(seq)]),
+                    storage="sqlite3")
+    data = next((tmp_path / "in").glob("*.db3"))
+    raw = data.read_bytes()
+    data.write_bytes(raw[: len(raw) // 2] if damage == "truncated" else bytes(len(raw)))
+    result = CliRunner().invoke(app, ["process", str(tmp_path / "in"), str(tmp_path / "out"),
+                                      "--model", str(tiny_model_path)])
+    assert isinstance(result.exception, DatasetError), result.exception
+    assert "cannot open bag" in str(result.exception)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
 
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import sys
+from pathlib import Path
 from typing import NoReturn
 
 import typer
@@ -22,6 +24,23 @@ def fail(message: str, code: int = 1) -> NoReturn:
     """Print a one-line error to stderr and exit: the only place the CLI chooses exit codes."""
     typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
     raise typer.Exit(code)
+
+
+def check_output(path: Path, option: str, folder: bool = False) -> None:
+    """Fail now, not after the work, when ``path`` (a file, or with ``folder`` a folder) cannot be written there.
+
+    The nearest existing ancestor must be a writable folder; an existing ``path`` must be of the right kind.
+    """
+    path = Path(path)
+    if path.exists() and path.is_dir() != folder:
+        fail(f"{option} {path} is {'a file' if folder else 'a folder'}; expected {'a folder' if folder else 'a file'}")
+    parent = path if folder and path.exists() else path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        fail(f"{option} {path}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        fail(f"{option} {path}: cannot write into {parent} (permission denied)")
 
 
 def main() -> None:

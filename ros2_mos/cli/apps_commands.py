@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app, fail
+from ros2_mos.cli.app import app, check_output, fail
 
 
 def _fmt(value: float, digits: int = 2) -> str:
@@ -114,6 +114,10 @@ def map_command(
 
     if out.suffix.lower() not in (".ply", ".pcd"):
         fail(f"--out must end in .ply or .pcd, got {out.name}")
+    for path in map_paths(out):
+        check_output(path, "--out")
+    if png is not None:
+        check_output(png, "--png")
     seq = SemanticKittiSequence(sequence_dir)
     mapping = MappingConfig(voxel_size=voxel_size, max_range=max_range, poses=poses)
     result = build_maps(seq, load_config(config, model), mapping,

@@ -10,7 +10,7 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app, fail
+from ros2_mos.cli.app import app, check_output, fail
 
 
 @app.command()
@@ -43,6 +43,9 @@ def train(
         cfg = dataclasses.replace(cfg, epochs=epochs)
     if max_minutes is not None:
         cfg = dataclasses.replace(cfg, max_minutes=max_minutes)
+    check_output(Path(cfg.out_dir), "out_dir", folder=True)
+    if export_to is not None:
+        check_output(export_to, "--export")
     trainer = Trainer(cfg, data, log=typer.echo, show_progress=progress)
     if trainer.dist.main:
         typer.echo(
@@ -89,6 +92,7 @@ def export(
         fail(f"checkpoint not found: {checkpoint}")
     if threshold is not None and not 0.0 < threshold < 1.0:  # NaN fails this too
         fail(f"--threshold must be in (0, 1), got {threshold}")
+    check_output(out, "--out")
     extra = None if threshold is None else {"recommended_threshold": threshold}
     report = export_checkpoint(checkpoint, out, extra=extra)
     typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.2f} MB, "

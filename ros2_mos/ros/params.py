@@ -23,6 +23,7 @@ from ros2_mos.config import (
     PostprocessConfig,
     ResidualConfig,
     SensorConfig,
+    read_yaml_mapping,
     sensor_preset,
 )
 from ros2_mos.errors import ConfigError
@@ -324,17 +325,7 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     Numbers are read as ROS reads them (``1e4`` is a float, as for ``mos_node --params-file``), and a
     file without a section for the node is an error for the node and every command alike.
     """
-    import yaml
-
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"params file not found: {path}")
-    try:
-        data = yaml.load(path.read_text(), Loader=_ros_yaml_loader()) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"{path}: expected a mapping of node names at the top level")
+    data = read_yaml_mapping(path, "params file", _ros_yaml_loader())
     values: dict[str, Any] = {}
     for section in ("/**", node_name, f"/{node_name}"):
         entry = data.get(section)

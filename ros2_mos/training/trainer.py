@@ -27,7 +27,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from ros2_mos.config import ResidualConfig, SensorConfig, sensor_preset
+from ros2_mos.config import ResidualConfig, SensorConfig, read_yaml_mapping, sensor_preset
 from ros2_mos.datasets.semantic_kitti import sequence_dirs
 from ros2_mos.errors import ConfigError, DatasetError
 from ros2_mos.features import InputSetup
@@ -178,15 +178,7 @@ class TrainConfig:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "TrainConfig":
-        import yaml
-
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"training config not found: {path}")
-        data = yaml.safe_load(path.read_text()) or {}
-        if not isinstance(data, Mapping):
-            raise ConfigError(f"{path}: expected a mapping at the top level")
-        return cls.from_dict(data)
+        return cls.from_dict(read_yaml_mapping(path, "training config"))
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
