@@ -88,6 +88,52 @@ class _Stopwatch:
         self.timings["total"] = (time.perf_counter() - self._start) * 1e3
 
 
+@dataclass
+class _Scan:
+    """The usable points of a scan (finite, positive range) and where they sit in the input."""
+
+    xyz: np.ndarray  # (M, 3) float32, contiguous
+    remission: np.ndarray  # (M,) float32, non-finite values zeroed
+    valid: np.ndarray  # (N,) bool over the input points
+
+    def scatter(self, values: np.ndarray, dtype: type) -> np.ndarray:
+        """Per-usable-point ``values`` as one value per input point (0 for the invalid ones)."""
+        out = np.zeros(len(self.valid), dtype)
+        out[self.valid] = values
+        return out
+
+
+@dataclass
+class _Notes:
+    """What a scan's checks found: warnings for the result and whether the buffer was reset."""
+
+    warnings: list[str] = field(default_factory=list)
+    reset: bool = False
+
+
+def _usable_points(points: np.ndarray, intensity: np.ndarray | None) -> _Scan:
+    """Check a scan's shapes and keep its finite, positive-range points; :class:`ScanError` when none is left."""
+    pts = check_points(points)
+    n = len(pts)
+    if n == 0:
+        raise ScanError("empty scan: no points")
+    rem = np.zeros(n, np.float32) if intensity is None else np.asarray(intensity, np.float32).reshape(-1)
+    if len(rem) != n:
+        raise ScanError(f"intensity has {len(rem)} values for {n} points")
+    valid = finite_mask(pts)
+    n_valid = int(valid.sum())
+    if n_valid == 0:
+        raise ScanError(f"scan has no finite point with positive range (all {n} points invalid)")
+    if n_valid == n:  # the common case: a plain copy (kept in the buffer), no boolean gather
+        xyz = np.array(pts, dtype=np.float32, order="C")
+        remission = np.nan_to_num(rem, nan=0.0, posinf=0.0, neginf=0.0)
+    else:
+        kept = np.flatnonzero(valid)
+        xyz = np.take(pts, kept, axis=0).astype(np.float32, copy=False)  # a row gather, not a 2-D mask
+        remission = np.nan_to_num(rem[kept], nan=0.0, posinf=0.0, neginf=0.0)
+    return _Scan(xyz, remission, valid)
+
+
 class MosPipeline:
     """Online MOS over a stream of scans from one sensor."""
 
@@ -161,61 +207,78 @@ class MosPipeline:
         :class:`ImplausibleScanError` before the odometry sees it, and leaves the pipeline as it was.
         """
         watch = _Stopwatch()
-        pts = check_points(points)
-        n = len(pts)
-        if n == 0:
-            raise ScanError("empty scan: no points")
-        rem = np.zeros(n, np.float32) if intensity is None else np.asarray(intensity, np.float32).reshape(-1)
-        if len(rem) != n:
-            raise ScanError(f"intensity has {len(rem)} values for {n} points")
-        valid = finite_mask(pts)
-        n_valid = int(valid.sum())
-        if n_valid == 0:
-            raise ScanError(f"scan has no finite point with positive range (all {n} points invalid)")
-        if n_valid == n:  # the common case: a plain copy (kept in the buffer), no boolean gather
-            xyz = np.array(pts, dtype=np.float32, order="C")
-            e = np.nan_to_num(rem, nan=0.0, posinf=0.0, neginf=0.0)
-        else:
-            kept = np.flatnonzero(valid)
-            xyz = np.take(pts, kept, axis=0).astype(np.float32, copy=False)  # a row gather, not a 2-D mask
-            e = np.nan_to_num(rem[kept], nan=0.0, posinf=0.0, neginf=0.0)
+        scan = _usable_points(points, intensity)
         watch.lap("validate")
-
         # The projection needs no pose: done first, its range image tells a scan from scattered points before
         # KISS-ICP spends seconds on them (issue 13) and before any state (buffer, odometry map) changes.
-        image = project(xyz, e, self.sensor)
+        image = project(scan.xyz, scan.remission, self.sensor)
         watch.lap("projection")
+        notes = _Notes()
+        self._check_stream(scan, image, timestamp, notes)
+        watch.lap("validate")
+        pose = self._pose(scan.xyz, pose, timestamp, notes)
+        watch.lap("odometry")
+        past = self.buffer.newest_first()
+        residuals, network_past = self._past_inputs(image, pose, past)
+        watch.lap("residuals")
+        prob_image = self._infer(image, network_past)
+        watch.lap("inference")
+        prob_image = self.belief.fuse(prob_image, image, pose)
+        watch.lap("temporal")
+        prob_image, point_prob = self._postprocess(prob_image, image)
+        watch.lap("postprocess")
+        self._remember(scan, pose, timestamp, point_prob >= self.threshold)
+        watch.lap("map_update")
+        watch.total()
+        return MosResult(
+            labels=scan.scatter(point_prob >= self.threshold, np.uint8),
+            probability=scan.scatter(point_prob, np.float32),
+            valid=scan.valid,
+            pose=pose,
+            range_image=image.range,
+            probability_image=prob_image,
+            mask_image=((prob_image >= self.threshold) & image.mask).astype(np.uint8),
+            residuals=residuals,
+            n_past_available=sum(o <= len(past) for o in self.setup.offsets),
+            n_past_required=self.n_past,
+            timings=watch.timings,
+            warnings=notes.warnings,
+            sensor_mismatch=self._sensor_mismatch or "",
+            reset=notes.reset,
+        )
+
+    def _check_stream(self, scan: "_Scan", image: RangeImage, timestamp: float, notes: "_Notes") -> None:
+        """Refuse what is no LiDAR scan; note what makes the labels suspect; reset when time went backwards."""
         implausible = implausible_message(image.range)
         if implausible is not None:
             raise ImplausibleScanError(implausible)
-
-        warnings: list[str] = []
-        reset = False
+        e = scan.remission
         if self.setup.uses_remission and len(e) and (float(e.max()) > MAX_REMISSION or float(e.min()) < 0.0):
-            warnings.append(
+            notes.warnings.append(
                 f"intensity spans {float(e.min()):.3g}..{float(e.max()):.3g}, outside the 0..1 remission this model "
                 "was trained on (KITTI's convention; Velodyne drivers publish 0..255, Ouster 16-bit counts): "
                 "labels may be wrong; use a model without remission input (the shipped one) or rescale")
         if self._last_stamp is not None and timestamp <= self._last_stamp:
-            warnings.append(f"time went backwards ({self._last_stamp:.3f} -> {timestamp:.3f} s): buffer reset")
+            notes.warnings.append(f"time went backwards ({self._last_stamp:.3f} -> {timestamp:.3f} s): buffer reset")
             self.reset()
-            reset = True
+            notes.reset = True
         if self._sensor_mismatch is None:  # the first scan of a stream: is it the configured sensor at all?
-            self._sensor_mismatch = mismatch_message(xyz, self.sensor) or ""
+            self._sensor_mismatch = mismatch_message(scan.xyz, self.sensor) or ""
         outside = 1.0 - float(image.pixels.in_image.mean())
         if outside > MAX_OUTSIDE_FRACTION:
-            warnings.append(f"{outside:.0%} of the points fall outside the {self.sensor.name} field of view or range "
-                            "(they take the nearest edge pixel's label): does the sensor configuration match the "
-                            "cloud?")
-        watch.lap("validate")
+            notes.warnings.append(
+                f"{outside:.0%} of the points fall outside the {self.sensor.name} field of view or range (they take "
+                "the nearest edge pixel's label): does the sensor configuration match the cloud?")
 
+    def _pose(self, xyz: np.ndarray, pose: np.ndarray | None, timestamp: float, notes: "_Notes") -> np.ndarray:
+        """The scan's world pose: given, or KISS-ICP's (restarted once if it diverges); a jump resets the buffer."""
         if pose is None:
             pose = np.asarray(self.odometry.estimate(xyz), dtype=np.float64)
             if not np.isfinite(pose).all():
                 # A diverged ICP: its state is poisoned, so start a new odometry sequence at this scan.
-                warnings.append("odometry returned a non-finite pose: odometry and buffer reset")
+                notes.warnings.append("odometry returned a non-finite pose: odometry and buffer reset")
                 self.reset()
-                reset = True
+                notes.reset = True
                 pose = np.asarray(self.odometry.estimate(xyz), dtype=np.float64)
                 if not np.isfinite(pose).all():
                     raise ScanError("odometry returned a non-finite pose for this scan even after a reset")
@@ -227,83 +290,58 @@ class MosPipeline:
             # Per 0.1 s (one 10 Hz scan): scans dropped upstream must not look like a jump.
             limit = self.config.odometry.max_translation_jump * max(1.0, (timestamp - self._last_stamp) / 0.1)
             if jump > limit:
-                warnings.append(f"pose jumped {jump:.1f} m since the last scan (limit {limit:.1f} m): "
-                                "odometry suspect, buffer reset")
+                notes.warnings.append(f"pose jumped {jump:.1f} m since the last scan (limit {limit:.1f} m): "
+                                      "odometry suspect, buffer reset")
                 self.buffer.clear()
                 self.belief.reset()
-                reset = True
-        watch.lap("odometry")
+                notes.reset = True
+        return pose
 
-        past = self.buffer.newest_first()
+    def _past_inputs(self, image: RangeImage, pose: np.ndarray,
+                     past: list[BufferedScan]) -> tuple[np.ndarray, np.ndarray | list[RangeImage]]:
+        """The residual images (empty for 'frames' setups) and what the network takes from the past scans."""
+        scans = [(s.points, s.pose) for s in past]
         if self.setup.kind == "residual" and self._torch is not None:
-            residuals = self._torch.residuals(image.range, pose, [(s.points, s.pose) for s in past], self.n_past,
-                                              self.config.residuals, self.setup.offsets, self.setup.signed)
-            extra: np.ndarray | list[RangeImage] = residuals
-        elif self.setup.kind == "residual":
+            residuals = self._torch.residuals(image.range, pose, scans, self.n_past, self.config.residuals,
+                                              self.setup.offsets, self.setup.signed)
+            return residuals, residuals
+        if self.setup.kind == "residual":
             residuals = residual_images(
-                image.range, pose, [(s.points, s.pose) for s in past], self.n_past, self.sensor, self.config.residuals,
+                image.range, pose, scans, self.n_past, self.sensor, self.config.residuals,
                 map_fn=self._pool.map if self._pool is not None else map, offsets=self.setup.offsets,
                 signed=self.setup.signed,
             )
-            extra = residuals
-        else:
-            residuals = np.zeros((0, self.sensor.height, self.sensor.width), np.float32)
-            extra = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor)
-                     for s in past]
-        watch.lap("residuals")
+            return residuals, residuals
+        frames = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor)
+                  for s in past]
+        return np.zeros((0, self.sensor.height, self.sensor.width), np.float32), frames
 
-        network_input = assemble_input(image, extra, self.setup, self.means, self.stds)
-        prob_image = self.model.predict(network_input)
+    def _infer(self, image: RangeImage, network_past: np.ndarray | list[RangeImage]) -> np.ndarray:
+        """The network's (H, W) moving probability, 0 on empty pixels."""
+        prob_image = self.model.predict(assemble_input(image, network_past, self.setup, self.means, self.stds))
         # No point, no probability: empty pixels never vote in the kNN, and a value there would only make the
         # vote's "does this window mix both labels" test fire for nothing (measured: README, Speed).
         np.multiply(prob_image, image.mask, out=prob_image)
-        watch.lap("inference")
+        return prob_image
 
-        prob_image = self.belief.fuse(prob_image, image, pose)
-        watch.lap("temporal")
-
+    def _postprocess(self, prob_image: np.ndarray, image: RangeImage) -> tuple[np.ndarray, np.ndarray]:
+        """Specks dropped (and segments filled, if set) in the image, then each point's probability by kNN vote."""
         if self._min_region_pixels > 1:
             prob_image = drop_small_regions(prob_image, image.range, self.threshold, self._min_region_pixels)
         if self.config.postprocess.segment_fill > 0:
             prob_image = fill_segments(prob_image, image.range, image.xyz[..., 2], self.threshold,
                                        self.config.postprocess.segment_fill)
-
         if self._torch is not None and self.config.postprocess.mode == "knn":
-            point_prob = self._torch.knn(prob_image, image.range, image.pixels, self.config.postprocess)
-        else:
-            point_prob = backproject(prob_image, image.range, image.pixels, self.config.postprocess,
-                                     self.threshold)
-        moving = point_prob >= self.threshold
-        watch.lap("postprocess")
+            return prob_image, self._torch.knn(prob_image, image.range, image.pixels, self.config.postprocess)
+        return prob_image, backproject(prob_image, image.range, image.pixels, self.config.postprocess,
+                                       self.threshold)
 
+    def _remember(self, scan: "_Scan", pose: np.ndarray, timestamp: float, moving: np.ndarray) -> None:
+        """The odometry map takes the scan (all of it, or its static points) and the buffer keeps it."""
         if self.config.odometry.map_update == "static":
-            self.odometry.update_map(xyz[~moving])
+            self.odometry.update_map(scan.xyz[~moving])
         else:
             self.odometry.update_map()
-        self.buffer.push(BufferedScan(points=xyz, remission=e, pose=pose, timestamp=timestamp))
+        self.buffer.push(BufferedScan(points=scan.xyz, remission=scan.remission, pose=pose, timestamp=timestamp))
         self._last_stamp = timestamp
         self._last_pose = pose
-        watch.lap("map_update")
-
-        labels = np.zeros(n, np.uint8)
-        labels[valid] = moving
-        probability = np.zeros(n, np.float32)
-        probability[valid] = point_prob
-        mask_image = ((prob_image >= self.threshold) & image.mask).astype(np.uint8)
-        watch.total()
-        return MosResult(
-            labels=labels,
-            probability=probability,
-            valid=valid,
-            pose=pose,
-            range_image=image.range,
-            probability_image=prob_image,
-            mask_image=mask_image,
-            residuals=residuals,
-            n_past_available=sum(o <= len(past) for o in self.setup.offsets),
-            n_past_required=self.n_past,
-            timings=watch.timings,
-            warnings=warnings,
-            sensor_mismatch=self._sensor_mismatch or "",
-            reset=reset,
-        )
