@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ros2_mos.config import MosConfig, SensorConfig
+from ros2_mos.config import MosConfig, PostprocessConfig, ResidualConfig, SensorConfig
 from ros2_mos.errors import ConfigError, ImplausibleScanError, ScanError
 from ros2_mos.features import assemble_input
 from ros2_mos.inference import MosModel, default_model_path, shipped_models
@@ -23,7 +23,7 @@ from ros2_mos.memory import retain_freed_memory
 from ros2_mos.metadata import check_threshold
 from ros2_mos.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
 from ros2_mos.postprocess import backproject
-from ros2_mos.projection import RangeImage, check_points, finite_mask, project
+from ros2_mos.projection import PixelIndex, RangeImage, check_points, finite_mask, project
 from ros2_mos.residuals import relative_pose, residual_images, transform_points
 from ros2_mos.segments import drop_small_regions, fill_segments
 from ros2_mos.sensor_check import implausible_message, mismatch_message
@@ -86,6 +86,35 @@ class _Stopwatch:
 
     def total(self) -> None:
         self.timings["total"] = (time.perf_counter() - self._start) * 1e3
+
+
+class NumpyGeometry:
+    """The default geometry backend: residual images and the kNN vote in numpy.
+
+    :class:`ros2_mos.torch_ops.TorchGeometry` has the same methods (``geometry_backend: torch``); the
+    pipeline picks one in ``__init__``. Past scans are re-projected on two threads (numpy releases the
+    GIL in its ufuncs).
+    """
+
+    def __init__(self, sensor: SensorConfig, parallel: bool = True) -> None:
+        self.sensor = sensor
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mos-residuals") if parallel else None
+
+    def residuals(self, current_range: np.ndarray, pose: np.ndarray, past: list[tuple[np.ndarray, np.ndarray]],
+                  n: int, config: ResidualConfig, offsets: tuple[int, ...] | None = None,
+                  signed: bool = False) -> np.ndarray:
+        return residual_images(current_range, pose, past, n, self.sensor, config,
+                               map_fn=self._pool.map if self._pool is not None else map, offsets=offsets,
+                               signed=signed)
+
+    def knn(self, prob_image: np.ndarray, range_image: np.ndarray, pixels: PixelIndex, config: PostprocessConfig,
+            threshold: float) -> np.ndarray:
+        return backproject(prob_image, range_image, pixels, config, threshold)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
 
 @dataclass
@@ -166,16 +195,14 @@ class MosPipeline:
         self.odometry = KissIcpOdometry(config.odometry)
         self.buffer = ScanBuffer(self.setup.history)
         self.belief = BeliefFilter(self.sensor, config.postprocess.temporal_weight)
-        # Past scans are re-projected in parallel (numpy releases the GIL in its ufuncs).
-        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mos-residuals") if self.n_past > 1 else None
-        self._last_stamp: float | None = None
-        self._last_pose: np.ndarray | None = None
-        self._sensor_mismatch: str | None = None  # None: not checked yet
-        self._torch: Any = None
+        self.geometry: Any = NumpyGeometry(self.sensor, parallel=self.n_past > 1)
         if config.geometry_backend == "torch":
             from ros2_mos.torch_ops import TorchGeometry  # the only place the runtime may import torch
 
-            self._torch = TorchGeometry(self.sensor, config.device)
+            self.geometry = TorchGeometry(self.sensor, config.device)
+        self._last_stamp: float | None = None
+        self._last_pose: np.ndarray | None = None
+        self._sensor_mismatch: str | None = None  # None: not checked yet
 
     @property
     def n_past(self) -> int:
@@ -183,9 +210,7 @@ class MosPipeline:
 
     def close(self) -> None:
         """Stop the worker threads (the pipeline is unusable afterwards)."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
+        self.geometry.close()
 
     def reset(self) -> None:
         """Forget past scans and the odometry map (time went backwards, odometry failed, ...)."""
@@ -300,17 +325,9 @@ class MosPipeline:
     def _past_inputs(self, image: RangeImage, pose: np.ndarray,
                      past: list[BufferedScan]) -> tuple[np.ndarray, np.ndarray | list[RangeImage]]:
         """The residual images (empty for 'frames' setups) and what the network takes from the past scans."""
-        scans = [(s.points, s.pose) for s in past]
-        if self.setup.kind == "residual" and self._torch is not None:
-            residuals = self._torch.residuals(image.range, pose, scans, self.n_past, self.config.residuals,
-                                              self.setup.offsets, self.setup.signed)
-            return residuals, residuals
         if self.setup.kind == "residual":
-            residuals = residual_images(
-                image.range, pose, scans, self.n_past, self.sensor, self.config.residuals,
-                map_fn=self._pool.map if self._pool is not None else map, offsets=self.setup.offsets,
-                signed=self.setup.signed,
-            )
+            residuals = self.geometry.residuals(image.range, pose, [(s.points, s.pose) for s in past], self.n_past,
+                                                self.config.residuals, self.setup.offsets, self.setup.signed)
             return residuals, residuals
         frames = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor)
                   for s in past]
@@ -331,10 +348,8 @@ class MosPipeline:
         if self.config.postprocess.segment_fill > 0:
             prob_image = fill_segments(prob_image, image.range, image.xyz[..., 2], self.threshold,
                                        self.config.postprocess.segment_fill)
-        if self._torch is not None and self.config.postprocess.mode == "knn":
-            return prob_image, self._torch.knn(prob_image, image.range, image.pixels, self.config.postprocess)
-        return prob_image, backproject(prob_image, image.range, image.pixels, self.config.postprocess,
-                                       self.threshold)
+        return prob_image, self.geometry.knn(prob_image, image.range, image.pixels, self.config.postprocess,
+                                             self.threshold)
 
     def _remember(self, scan: "_Scan", pose: np.ndarray, timestamp: float, moving: np.ndarray) -> None:
         """The odometry map takes the scan (all of it, or its static points) and the buffer keeps it."""

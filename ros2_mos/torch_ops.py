@@ -144,7 +144,15 @@ class TorchGeometry:
         return residual_images(cur, pose, on_device, n, self.sensor, config, signed).cpu().numpy()
 
     def knn(self, prob_image: np.ndarray, range_img: np.ndarray, pixels: PixelIndex,
-            config: PostprocessConfig) -> np.ndarray:
+            config: PostprocessConfig, threshold: float = 0.5) -> np.ndarray:
+        """Per-point probability by the kNN vote (``mode: nearest`` goes to numpy, as it is a plain gather)."""
+        if config.mode != "knn":
+            from ros2_mos.postprocess import backproject
+
+            return backproject(prob_image, range_img, pixels, config, threshold)
         prob = torch.from_numpy(prob_image).to(self.device)
         rng = torch.from_numpy(range_img).to(self.device)
         return knn_backproject(prob, rng, pixels, config).cpu().numpy().astype(np.float32)
+
+    def close(self) -> None:
+        """Nothing to stop (the same interface as the numpy backend)."""

@@ -244,9 +244,10 @@ def test_scattered_points_are_skipped_and_a_slow_registration_keeps_the_diagnost
         pytest.skip(f"the forced registration took only {odometry_s:.2f} s here: too fast to show a stall")
     during = [t for t in arrivals if started <= t <= finished]
     gaps = np.diff([started, *during, finished])
-    # One uninterrupted KISS-ICP call held the GIL, so no diagnostics, for the whole registration. In slices the
-    # 0.2 s timer gets through several times (the bound leaves room for a loaded 2-core machine).
-    assert len(during) >= 2 and gaps.max() < min(1.5, 0.75 * odometry_s), (gaps.max(), odometry_s, len(during))
+    # One uninterrupted KISS-ICP call held the GIL, so no diagnostics, for the whole registration: a gap at least
+    # as long as the registration. In slices the 0.2 s timer gets through again and again; the bounds leave room
+    # for a loaded 2-core machine (measured there: largest gap 0.8 s of 1.3 s, 1.7 s of 4.6 s).
+    assert len(during) >= 3 and gaps.max() < 0.75 * odometry_s, (gaps.max(), odometry_s, len(during))
 
 
 # ----------------------------------------------------------------------------- hostile PointCloud2 to the node
