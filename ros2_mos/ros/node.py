@@ -18,7 +18,6 @@ import threading
 import time
 from typing import Any
 
-import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -28,6 +27,7 @@ from ros2_mos.errors import ConfigError, ModelError, MosError, ScanError
 from ros2_mos.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
 from ros2_mos.ros.dds import transport_summary, use_large_message_profile
+from ros2_mos.ros.diagnostics import DIAGNOSTIC_NAME, node_status
 from ros2_mos.ros.latest_queue import LatestQueue
 from ros2_mos.ros.params import (
     NODE_NAME,
@@ -40,12 +40,6 @@ from ros2_mos.ros.params import (
 )
 from ros2_mos.ros.processor import ScanOutput, ScanProcessor, SkippedScan
 from ros2_mos.ros.stats import NodeStats, summary_line
-
-DIAGNOSTIC_NAME = "mos_node: moving object segmentation"
-#: Consecutive unexpected failures after which diagnostics report ERROR.
-ERROR_STREAK = 3
-#: Seconds without input after which diagnostics report the input as stale.
-STALE_AFTER_S = 2.0
 
 
 def _descriptor(spec: ParamSpec) -> Any:
@@ -133,13 +127,11 @@ class MosNode(Node):
                                       f"not published on /tf; {s.topics['odometry']} carries the same pose")
         self._diag_pub = self.create_publisher(self.types.diagnostic_array, "/diagnostics", 10)
         self._map: Any = None
-        self._map_lock = threading.Lock()
-        self._map_scans = 0
         if s.static_map is not None:
-            from ros2_mos.apps.mapping import VoxelMap, VoxelMapConfig
+            from ros2_mos.ros.static_map import StaticMap
 
             sm = s.static_map
-            self._map = VoxelMap(VoxelMapConfig(sm.voxel_size, sm.max_radius, sm.max_points))
+            self._map = StaticMap(sm)
             map_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.VOLATILE)
             self._map_pub = self.create_publisher(self.types.point_cloud2, sm.topic, map_qos)
@@ -223,7 +215,8 @@ class MosNode(Node):
             if pub is not None:
                 pub.publish(message)
         self._last_output = out
-        self._update_map(out)
+        if self._map is not None:
+            self._map.add(out)
         self.stats.on_processed(out.timings, (time.monotonic() - received) * 1e3, out.result.degraded)
 
     def _wanted(self) -> frozenset[str]:
@@ -237,63 +230,18 @@ class MosNode(Node):
         return frozenset(key for key, pub in self._pubs.items()
                          if key not in lazy or pub.get_subscription_count() > 0)
 
-    # ------------------------------------------------------------------ cleaned local map
-    def _update_map(self, out: ScanOutput) -> None:
-        """Every n-th scan's static points into the voxel map (in the odometry frame)."""
-        if self._map is None:
-            return
-        if out.reset:
-            with self._map_lock:
-                self._map.clear()  # a reset starts a new odometry frame: old points would not line up
-            self._map_scans = 0
-        self._map_scans += 1
-        if (self._map_scans - 1) % self.settings.static_map.insert_every == 0:
-            static = out.static_points
-            with self._map_lock:
-                self._map.insert_scan(static, out.result.pose, stamp=out.stamp_ns * 1e-9)
-                self._map_stamp = out.stamp_ns
-
-    def _publish_map(self) -> None:
-        with self._map_lock:
-            if len(self._map) == 0:
-                return
-            points = np.array(self._map.points, dtype=np.float32)
-            stamp = self._map_stamp
-        header = m.make_header(self.types, stamp, self.settings.odom_frame)
-        msg = fill_xyzi(m.empty_cloud(self.types, header), points, field_factory=self.types.point_field)
-        self._map_pub.publish(msg)
-
     # ------------------------------------------------------------------ reporting
+    def _publish_map(self) -> None:
+        snapshot = self._map.snapshot()
+        if snapshot is None:
+            return
+        points, stamp = snapshot
+        header = m.make_header(self.types, stamp, self.settings.odom_frame)
+        cloud = fill_xyzi(m.empty_cloud(self.types, header), points, field_factory=self.types.point_field)
+        self._map_pub.publish(cloud)
+
     def _publish_diagnostics(self) -> None:
-        s = self.stats.snapshot()
-        level, message = m.OK, "ok"
-        last = self._last_output
-        stale = s.seconds_since_last_scan is None or s.seconds_since_last_scan > STALE_AFTER_S
-        if last is not None and last.result.sensor_mismatch:
-            level, message = m.ERROR, last.result.sensor_mismatch
-        elif s.consecutive_errors >= ERROR_STREAK:
-            level, message = m.ERROR, f"{s.consecutive_errors} scans failed in a row: {s.last_warning}"
-        elif stale:
-            level, message = m.WARN, "no input" + ("" if s.seconds_since_last_scan is None else
-                                                   f" for {s.seconds_since_last_scan:.1f} s")
-        elif last is not None and last.result.degraded:
-            level, message = m.WARN, "labels degraded: " + ("; ".join(last.result.warnings) or
-                                                            f"{last.result.n_past_available} of "
-                                                            f"{last.result.n_past_required} past scans available")
-        values: dict[str, Any] = {
-            "rate_hz": s.rate_hz, "input_hz": s.input_hz, "capacity_hz": s.capacity_hz,
-            "received": s.received, "processed": s.processed, "dropped": s.dropped,
-            "lost_in_transport": s.lost_in_transport,
-            "skipped": s.skipped_total, **{f"skipped.{k}": v for k, v in s.skipped.items()},
-            "errors": s.errors, "resets": s.resets, "degraded_scans": s.degraded,
-            "latency_ms_mean": s.latency_ms[0], "latency_ms_max": s.latency_ms[1],
-            **{f"{stage}_ms_mean": v[0] for stage, v in s.stage_ms.items()},
-            **{f"{stage}_ms_max": v[1] for stage, v in s.stage_ms.items()},
-            "last_warning": s.last_warning,
-        }
-        if last is not None:
-            values.update(points=len(last.valid_index), moving_points=last.n_moving,
-                          residuals_complete=last.result.residuals_complete, degraded=last.result.degraded)
+        level, message, values = node_status(self.stats.snapshot(), self._last_output)
         header = m.make_header(self.types, self.get_clock().now().nanoseconds, "")
         self._diag_pub.publish(m.diagnostics_msg(self.types, header, DIAGNOSTIC_NAME, self.get_name(), level,
                                                  message, values))

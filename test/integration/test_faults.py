@@ -30,7 +30,7 @@ from ros_harness import (  # noqa: E402
 from ros2_mos.errors import ScanError  # noqa: E402
 from ros2_mos.pointcloud2 import FLOAT32, INT16, MAX_FIELDS, MAX_POINT_STEP, decode_xyz_intensity  # noqa: E402
 from ros2_mos.ros import messages as m  # noqa: E402
-from ros2_mos.ros.node import STALE_AFTER_S  # noqa: E402
+from ros2_mos.ros.diagnostics import STALE_AFTER_S  # noqa: E402
 
 DOMAIN = 45 + os.getpid() % 150 + 6  # apart from test_node's and test_soak's domains in the same run
 PERIOD = 100_000_000
