@@ -214,12 +214,16 @@ class MosPipeline:
 
     def reset(self) -> None:
         """Forget past scans and the odometry map (time went backwards, odometry failed, ...)."""
-        self.buffer.clear()
-        self.belief.reset()
+        self._forget_past_scans()
         self.odometry.reset()
         self._last_stamp = None
         self._last_pose = None
         self._sensor_mismatch = None
+
+    def _forget_past_scans(self) -> None:
+        """The scan buffer and the temporal belief: what a jump in the poses makes meaningless."""
+        self.buffer.clear()
+        self.belief.reset()
 
     def process(
         self, points: np.ndarray, intensity: np.ndarray | None, timestamp: float, pose: np.ndarray | None = None
@@ -251,12 +255,13 @@ class MosPipeline:
         prob_image = self.belief.fuse(prob_image, image, pose)
         watch.lap("temporal")
         prob_image, point_prob = self._postprocess(prob_image, image)
+        moving = point_prob >= self.threshold
         watch.lap("postprocess")
-        self._remember(scan, pose, timestamp, point_prob >= self.threshold)
+        self._remember(scan, pose, timestamp, moving)
         watch.lap("map_update")
         watch.total()
         return MosResult(
-            labels=scan.scatter(point_prob >= self.threshold, np.uint8),
+            labels=scan.scatter(moving, np.uint8),
             probability=scan.scatter(point_prob, np.float32),
             valid=scan.valid,
             pose=pose,
@@ -317,8 +322,7 @@ class MosPipeline:
             if jump > limit:
                 notes.warnings.append(f"pose jumped {jump:.1f} m since the last scan (limit {limit:.1f} m): "
                                       "odometry suspect, buffer reset")
-                self.buffer.clear()
-                self.belief.reset()
+                self._forget_past_scans()
                 notes.reset = True
         return pose
 

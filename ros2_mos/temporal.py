@@ -24,7 +24,7 @@ import numpy as np
 
 from ros2_mos.config import SensorConfig
 from ros2_mos.projection import RangeImage, pixel_index_columns
-from ros2_mos.residuals import relative_pose
+from ros2_mos.residuals import relative_pose, transform_columns
 
 #: Pixels with a lower moving probability keep their own belief (no lookup in the previous scan).
 CANDIDATE_PROBABILITY = 0.05
@@ -84,10 +84,8 @@ class BeliefFilter:
     def prior(self, xyz: np.ndarray, ranges: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """The previous belief (log-odds) of the surface each point (current frame) lies on; 0 where none matches."""
         assert self._range is not None and self._probability is not None and self._pose is not None
-        to_previous = relative_pose(self._pose, np.asarray(pose, np.float64)).astype(np.float32)
-        x, y, z = (xyz @ to_previous[:3, :3].T + to_previous[:3, 3]).T
-        pixels = pixel_index_columns(np.ascontiguousarray(x), np.ascontiguousarray(y), np.ascontiguousarray(z),
-                                     self.sensor)
+        x, y, z = transform_columns(xyz, relative_pose(self._pose, np.asarray(pose, np.float64)))
+        pixels = pixel_index_columns(x, y, z, self.sensor)
         previous_range = self._range[pixels.v, pixels.u]
         tolerance = np.maximum(MATCH_ABSOLUTE, MATCH_RELATIVE * ranges)
         same = pixels.in_image & (previous_range > 0) & (np.abs(pixels.range - previous_range) <= tolerance)
