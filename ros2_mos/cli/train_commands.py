@@ -104,9 +104,11 @@ def ablation(
     config: Path = typer.Option(..., "--config", help="Base training YAML; each variant changes only network/input"),
     data: Path = typer.Option(..., "--data", help="SemanticKITTI-format root"),
     test: list[str] = typer.Option(..., "--test", help="Held-out test sequences (repeat the option)"),
+    test_data: Optional[Path] = typer.Option(None, "--test-data",
+                                             help="SemanticKITTI-format root of the test sequences (default: --data)"),
     variant: list[str] = typer.Option(
         ["fastmos:residual:0", "fastmos:frames:1", "fastmos:residual:1", "fastmos:residual:8"],
-        "--variant", help="NETWORK:residual|frames:N rows (repeat the option)",
+        "--variant", help="NETWORK:residual|frames:N or NETWORK:residual:O1,O2,... rows (repeat the option)",
     ),
     runs: Path = typer.Option(Path("runs/ablation"), help="Run folders of the variants (resumed if present)"),
     epochs: Optional[int] = typer.Option(None, help="Override the base config's epochs"),
@@ -128,7 +130,7 @@ def ablation(
         base = dataclasses.replace(base, max_minutes=max_minutes)
     variants = [Variant.parse(v) for v in variant]
     rows = run_ablation(base, data, [t.zfill(2) if t.isdigit() else t for t in test], variants, runs,
-                        baselines=baselines, log=typer.echo, test_stride=test_stride)
+                        baselines=baselines, log=typer.echo, test_stride=test_stride, test_root=test_data)
     table = format_table(rows)
     typer.echo(table)
     if out is not None:

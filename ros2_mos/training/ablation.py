@@ -24,7 +24,7 @@ import torch
 from ros2_mos.config import PostprocessConfig
 from ros2_mos.datasets.semantic_kitti import sequence_dirs
 from ros2_mos.errors import ConfigError
-from ros2_mos.features import InputSetup
+from ros2_mos.features import IMAGE_CHANNELS, InputSetup
 from ros2_mos.metrics import MovingIoU
 from ros2_mos.postprocess import backproject
 from ros2_mos.projection import PixelIndex
@@ -35,27 +35,56 @@ from ros2_mos.training.trainer import TrainConfig, Trainer, load_checkpoint, mod
 
 @dataclass(frozen=True)
 class Variant:
-    """One CNN row: a network and an input setup (e.g. 'fastmos', residual N=8)."""
+    """One CNN row: a network and an input setup (e.g. 'fastmos', residual N=8).
+
+    ``past_offsets`` picks which past scans the residuals use (empty: 1..n_past).
+    """
 
     network: str
     kind: str
     n_past: int
-
-    @property
-    def setup(self) -> InputSetup:
-        return InputSetup(self.kind, self.n_past)
+    past_offsets: tuple[int, ...] = ()
 
     @property
     def slug(self) -> str:
+        if self.past_offsets:
+            return f"{self.network}-{self.kind}" + "-".join(str(o) for o in self.past_offsets)
         return f"{self.network}-{self.kind}{self.n_past}"
+
+    def training_config(self, base: TrainConfig, runs_dir: str | Path) -> TrainConfig:
+        """``base`` with this row's network and input.
+
+        Residual rows keep the base's residual sign and image channels (the recipe under test); frame rows
+        (and one frame, residual N=0) take all five image channels, as in the paper.
+        """
+        residual = self.kind == "residual" and self.n_past > 0
+        return dataclasses.replace(
+            base,
+            name=self.slug,
+            network=self.network,
+            network_kwargs=base.network_kwargs if self.network == base.network else {},
+            input_kind=self.kind,
+            n_past=self.n_past,
+            past_offsets=list(self.past_offsets),
+            signed_residuals=base.signed_residuals and residual,
+            image_channels=list(base.image_channels) if residual else list(IMAGE_CHANNELS),
+            out_dir=str(Path(runs_dir) / self.slug),
+            init_from=None,
+        )
 
     @classmethod
     def parse(cls, text: str) -> "Variant":
-        """'fastmos:residual:8', 'fastmos:frames:1' or 'salsanext:residual:1'."""
+        """'fastmos:residual:8', 'fastmos:frames:1', 'salsanext:residual:1' or 'fastmos:residual:1,2,4,8'."""
         parts = text.split(":")
-        if len(parts) != 3 or not parts[2].isdigit():
-            raise ConfigError(f"variant {text!r} must look like NETWORK:residual|frames:N")
-        return cls(parts[0], parts[1], int(parts[2]))
+        offsets = parts[2].split(",") if len(parts) == 3 else []
+        if len(parts) != 3 or not all(o.isdigit() for o in offsets) or parts[1] not in ("residual", "frames"):
+            raise ConfigError(f"variant {text!r} must look like NETWORK:residual|frames:N or "
+                              "NETWORK:residual:O1,O2,... (offsets of the past scans)")
+        if len(offsets) == 1:
+            return cls(parts[0], parts[1], int(offsets[0]))
+        past_offsets = tuple(int(o) for o in offsets)
+        InputSetup(parts[1], len(past_offsets), past_offsets)  # validates the offsets
+        return cls(parts[0], parts[1], len(past_offsets), past_offsets)
 
 
 @dataclass
@@ -114,10 +143,14 @@ def run_ablation(
     log: Callable[[str], None] = lambda s: None,
     show_progress: bool = False,
     test_stride: int = 1,
+    test_root: str | Path | None = None,
 ) -> list[Row]:
-    """Train (or resume) each variant, tune the baselines, and score everything on the test sequences."""
+    """Train (or resume) each variant, tune the baselines, and score everything on the test sequences.
+
+    The test sequences are read from ``test_root`` (default: ``data_root``).
+    """
     spec = dataclasses.replace(base.cache_spec, with_points=True)
-    test_dirs = sequence_dirs(data_root, test_sequences)
+    test_dirs = sequence_dirs(data_root if test_root is None else test_root, test_sequences)
     test_caches = build_caches(test_dirs, base.cache_dir, spec, base.cache_workers, log)
     rows: list[Row] = []
     if baselines:
@@ -136,25 +169,17 @@ def run_ablation(
                         f"tau={rg.tau_seed}, jump={rg.rel_jump}, frac={rg.seed_fraction} (tuned on valid)"))
         log(f"Residual + RG baseline: IoU {100 * score.iou:.1f} ({time.monotonic() - t0:.0f} s)")
     for variant in variants:
-        config = dataclasses.replace(
-            base,
-            name=variant.slug,
-            network=variant.network,
-            network_kwargs=base.network_kwargs if variant.network == base.network else {},
-            input_kind=variant.kind,
-            n_past=variant.n_past,
-            out_dir=str(Path(runs_dir) / variant.slug),
-        )
+        config = variant.training_config(base, runs_dir)
         t0 = time.monotonic()
         trainer = Trainer(config, data_root, log=log, show_progress=show_progress)
         history = trainer.fit()
         minutes = sum(h.seconds for h in history) / 60.0
         state = load_checkpoint(Path(config.out_dir) / "best.pt")
         model = model_from_checkpoint(state)
-        predict = network_predictor(model, test_caches, variant.setup, state["means"], state["stds"])
+        predict = network_predictor(model, test_caches, config.setup, state["means"], state["stds"])
         score = evaluate_point_iou(test_caches, predict, stride=test_stride)
         valid = state.get("valid_iou", float("nan"))
-        rows.append(Row(variant.network, variant.setup.label, score.iou,
+        rows.append(Row(variant.network, config.setup.label, score.iou,
                         f"epochs {state['epoch'] + 1}, valid pixel IoU {100 * valid:.1f}", minutes))
         log(f"{variant.slug}: test IoU {100 * score.iou:.1f} ({time.monotonic() - t0:.0f} s)")
     return rows
