@@ -70,10 +70,10 @@ def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, thread
     from ros2_mos.datasets.bags import iter_pointclouds
     from ros2_mos.pipeline import MosPipeline
     from ros2_mos.ros.messages import MessageTypes
-    from ros2_mos.ros.params import defaults, mos_config, node_settings, replace_model
+    from ros2_mos.ros.params import load_params, mos_config, node_settings
     from ros2_mos.ros.processor import ScanProcessor
 
-    values = replace_model(defaults(), model, sensor)
+    values = load_params(None, model, sensor)
     values["intra_op_threads"] = threads
     values["geometry_backend"] = geometry
     pipeline = MosPipeline(mos_config(values))

@@ -60,6 +60,61 @@ def check_finite(what: str, **values: Any) -> None:
 
 
 @dataclass(frozen=True)
+class Knob:
+    """The one definition of a configuration value besides its name and default: type, meaning, limits.
+
+    The dataclasses below validate themselves from it, and the node's ROS parameters
+    (:mod:`ros2_mos.ros.params`: descriptors, config/mos.yaml, the README table) are made from it.
+    ``min``/``max`` are inclusive unless ``above`` is set (then the value must exceed ``min``);
+    ``unset`` is the value a ROS parameter (which has no None) takes for an optional field's None.
+    """
+
+    kind: type
+    description: str
+    min: float | None = None
+    max: float | None = None
+    above: bool = False
+    choices: tuple[str, ...] = ()
+    unset: Any = None
+
+    def check(self, what: str, name: str, value: Any) -> None:
+        """One clear :class:`ConfigError` line unless ``value`` has this knob's type, limits and choices."""
+        if value is None and self.unset is not None:
+            return
+        if self.kind is float:
+            check_finite(what, **{name: value})
+        elif self.kind is int:
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise ConfigError(f"{what} {name} must be an integer, got {value!r}")
+        elif type(value) is not self.kind:
+            raise ConfigError(f"{what} {name} must be a {self.kind.__name__}, got {value!r}")
+        if self.choices and value not in self.choices:
+            raise ConfigError(f"{what} {name} must be one of {', '.join(self.choices)}; got {value!r}")
+        if self.min is not None and (value <= self.min if self.above else value < self.min):
+            raise ConfigError(f"{what} {name} must be {'>' if self.above else '>='} {self.min:g}, got {value!r}")
+        if self.max is not None and value > self.max:
+            raise ConfigError(f"{what} {name} must be <= {self.max:g}, got {value!r}")
+
+
+def knob(default: Any, description: str, *, kind: type | None = None, min: float | None = None,
+         max: float | None = None, above: bool = False, choices: tuple[str, ...] = (), unset: Any = None) -> Any:
+    """A dataclass field with its :class:`Knob` (``kind`` defaults to the default's type)."""
+    spec = Knob(kind or type(default), description, min, max, above, tuple(choices), unset)
+    return field(default=default, metadata={"knob": spec})
+
+
+def knobs(cls: Any) -> list[tuple[dataclasses.Field, Knob]]:
+    """The fields of a configuration dataclass that carry a :class:`Knob`, in declaration order."""
+    return [(f, f.metadata["knob"]) for f in dataclasses.fields(cls) if "knob" in f.metadata]
+
+
+def check_knobs(obj: Any, what: str) -> None:
+    """Validate every knob of a configuration dataclass instance."""
+    for f, spec in knobs(obj):
+        spec.check(what, f.name, getattr(obj, f.name))
+
+
+@dataclass(frozen=True)
 class SensorConfig:
     """Geometry of the range image a rotating LiDAR is projected to (paper eq. 1).
 
@@ -69,30 +124,22 @@ class SensorConfig:
     """
 
     name: str = "hdl64"
-    height: int = 64
-    width: int = 2048
-    fov_up_deg: float = 3.0
-    fov_down_deg: float = -25.0
-    min_range: float = 0.0
-    max_range: float = 120.0
+    height: int = knob(64, "range image rows (beams)", min=1, max=1024)
+    width: int = knob(2048, "range image columns", min=1, max=16384)
+    fov_up_deg: float = knob(3.0, "elevation of the top row (deg)", min=-90.0, max=90.0)
+    fov_down_deg: float = knob(-25.0, "elevation of the bottom row (deg)", min=-90.0, max=90.0)
+    min_range: float = knob(0.0, "points closer than this are left out (m)", min=0.0)
+    # Ranges above MAX_RANGE_LIMIT are no LiDAR's (and break KISS-ICP's voxel hashing).
+    max_range: float = knob(120.0, "points farther than this are left out (m)", min=0.0, max=MAX_RANGE_LIMIT)
 
     def __post_init__(self) -> None:
-        check_finite(f"sensor {self.name!r}:", fov_up_deg=self.fov_up_deg, fov_down_deg=self.fov_down_deg,
-                     min_range=self.min_range, max_range=self.max_range)
-        if not -90.0 <= self.fov_down_deg < self.fov_up_deg <= 90.0:
-            raise ConfigError(f"sensor {self.name!r}: need -90 <= fov_down_deg < fov_up_deg <= 90, "
-                              f"got {self.fov_down_deg} and {self.fov_up_deg}")
-        if self.max_range > MAX_RANGE_LIMIT:
-            raise ConfigError(f"sensor {self.name!r}: max_range must be <= {MAX_RANGE_LIMIT:g} m, got {self.max_range}")
-        if self.height <= 0 or self.width <= 0:
-            raise ConfigError(f"sensor {self.name!r}: height and width must be positive, "
-                              f"got {self.height} x {self.width}")
-        if not self.fov_up_deg > self.fov_down_deg:
+        check_knobs(self, f"sensor {self.name!r}:")
+        if not self.fov_down_deg < self.fov_up_deg:
             raise ConfigError(
                 f"sensor {self.name!r}: fov_up_deg ({self.fov_up_deg}) must be greater than "
                 f"fov_down_deg ({self.fov_down_deg})"
             )
-        if not (0.0 <= self.min_range < self.max_range):
+        if not self.min_range < self.max_range:
             raise ConfigError(
                 f"sensor {self.name!r}: need 0 <= min_range < max_range, got {self.min_range} and {self.max_range}"
             )
@@ -166,99 +213,74 @@ class ResidualConfig:
     The defaults (2, 50) m are those of the LiDAR-MOS reference implementation.
     """
 
-    min_range: float = 2.0
-    max_range: float = 50.0
+    min_range: float = knob(2.0, "residuals only where both ranges exceed this (m)", min=0.0)
+    max_range: float = knob(50.0, "residuals only where both ranges are below this (m)", min=0.0,
+                            max=MAX_RANGE_LIMIT)
 
     def __post_init__(self) -> None:
-        check_finite("residuals", min_range=self.min_range, max_range=self.max_range)
-        if not 0.0 <= self.min_range < self.max_range <= MAX_RANGE_LIMIT:
+        check_knobs(self, "residuals")
+        if not self.min_range < self.max_range:
             raise ConfigError(f"residuals: need 0 <= min_range < max_range <= {MAX_RANGE_LIMIT:g}, "
                               f"got {self.min_range} and {self.max_range}")
 
 
 @dataclass(frozen=True)
 class PostprocessConfig:
-    """kNN back-projection over the range image, as RangeNet++ / LiDAR-MOS do it.
+    """kNN back-projection over the range image, as RangeNet++ / LiDAR-MOS do it, and what follows it.
 
     ``mode='nearest'`` takes each point's own pixel instead, for comparison.
     """
 
-    mode: str = "knn"
-    k: int = 5
-    window: int = 5
-    sigma: float = 1.0
-    cutoff: float = 1.0
-    # Segment consistency (ros2_mos.segments.fill_segments): a connected non-ground segment of the
-    # range image of which at least this share is moving is labelled moving as a whole; 0 = off.
-    segment_fill: float = 0.0
-    # Connected moving range-image regions smaller than this many pixels of a 64 x 2048 image (scaled
-    # with the image size for other sensors) are labelled static (ros2_mos.segments.drop_small_regions):
-    # speckle on foliage and depth edges; 0 = off.
-    min_region_pixels: int = 30
-    # Temporal fusion (ros2_mos.temporal.BeliefFilter): how much of the last scan's moving belief (log-odds)
-    # at the same surface carries into this scan's; 0 = off (each scan labelled on its own), at most 1.
-    temporal_weight: float = 0.5
+    mode: str = knob("knn", "label back-projection: kNN over the range image or nearest pixel",
+                     choices=("knn", "nearest"))
+    k: int = knob(5, "kNN: neighbours that vote", min=1, max=225)
+    window: int = knob(5, "kNN: odd search window size (pixels)", min=1, max=15)
+    sigma: float = knob(1.0, "kNN: Gaussian weight of the window", min=0.0, above=True)
+    cutoff: float = knob(1.0, "kNN: neighbours farther than this in range do not vote (m)", min=0.0, above=True)
+    # ros2_mos.segments.fill_segments
+    segment_fill: float = knob(0.0, "a connected non-ground range-image segment at least this share moving is "
+                                    "labelled moving whole; 0 = off", min=0.0, max=1.0)
+    # ros2_mos.segments.drop_small_regions: speckle on foliage and depth edges
+    min_region_pixels: int = knob(30, "connected moving range-image regions smaller than this (pixels of a "
+                                      "64 x 2048 image, scaled for others) are labelled static; 0 = off",
+                                  min=0, max=10000)
+    # ros2_mos.temporal.BeliefFilter
+    temporal_weight: float = knob(0.5, "temporal fusion: share of the last scan's moving belief (log-odds) at the "
+                                       "same surface carried into this scan's; 0 = off", min=0.0, max=1.0)
 
     def __post_init__(self) -> None:
-        if self.mode not in ("knn", "nearest"):
-            raise ConfigError(f"postprocess mode must be 'knn' or 'nearest', got {self.mode!r}")
-        check_finite("postprocess", sigma=self.sigma, cutoff=self.cutoff, segment_fill=self.segment_fill,
-                     temporal_weight=self.temporal_weight)
-        if not 0.0 <= self.temporal_weight <= 1.0:
-            raise ConfigError(f"postprocess temporal_weight must be in [0, 1] (0 = off), got {self.temporal_weight}")
-        if not 0.0 <= self.segment_fill <= 1.0:
-            raise ConfigError(f"postprocess segment_fill must be in [0, 1] (0 = off), got {self.segment_fill}")
-        if isinstance(self.min_region_pixels, bool) or not isinstance(self.min_region_pixels, int) \
-                or not 0 <= self.min_region_pixels <= 10000:
-            raise ConfigError(f"postprocess min_region_pixels must be an integer in [0, 10000] (0 = off), "
-                              f"got {self.min_region_pixels!r}")
-        if self.window < 1 or self.window % 2 == 0:
+        check_knobs(self, "postprocess")
+        if self.window % 2 == 0:
             raise ConfigError(f"postprocess window must be a positive odd number, got {self.window}")
-        if not 1 <= self.k <= self.window * self.window:
+        if not self.k <= self.window * self.window:
             raise ConfigError(f"postprocess k must be in 1..window^2 ({self.window * self.window}), got {self.k}")
-        if self.sigma <= 0 or self.cutoff <= 0:
-            raise ConfigError(f"postprocess sigma and cutoff must be positive, got {self.sigma} and {self.cutoff}")
 
 
 @dataclass(frozen=True)
 class OdometryConfig:
     """KISS-ICP settings. ``voxel_size`` None lets KISS-ICP pick max_range / 100."""
 
-    max_range: float = 100.0
-    min_range: float = 0.0
-    voxel_size: float | None = None
-    # KISS-ICP's cap on map points per voxel (its default is 20). Registration cost grows with it
-    # (measured: README, Speed).
-    max_points_per_voxel: int = 10
-    # KISS-ICP sees every k-th point of the scan: it voxelises them at 0.5 m and registers ~2.5k
-    # points anyway, so half a 120k-point scan covers the same voxels (measured: README, Speed).
-    point_stride: int = 2
-    deskew: bool = False
-    # A relative motion larger than this per 0.1 s (one scan at 10 Hz; 50 m/s) is treated as a
-    # failure of the odometry: the scan buffer is reset instead of producing garbage residuals.
+    max_range: float = knob(100.0, "KISS-ICP: ignore points beyond (m)", min=0.0, max=MAX_RANGE_LIMIT)
+    min_range: float = knob(0.0, "KISS-ICP: ignore points closer than (m)", min=0.0)
+    voxel_size: float | None = knob(None, "KISS-ICP voxel size (m); 0 = max_range / 100", kind=float, min=0.0,
+                                    above=True, unset=0.0)
+    # Registration cost grows with it (benchmarks/bench.md).
+    max_points_per_voxel: int = knob(10, "KISS-ICP: map points kept per voxel (KISS-ICP's own default is 20; "
+                                         "fewer is faster)", min=1, max=1000)
+    # KISS-ICP voxelises at 0.5 m and registers ~2.5k points anyway (benchmarks/bench.md).
+    point_stride: int = knob(2, "KISS-ICP registers every k-th point of the scan (1 = all; MOS still labels "
+                                "every point)", min=1, max=16)
+    deskew: bool = knob(False, "KISS-ICP constant-velocity deskewing")
     # The limit grows with the time since the last processed scan, so dropped scans don't trip it.
-    max_translation_jump: float = 5.0
-    # 'all': KISS-ICP's map takes every point (plain KISS-ICP); 'static': only the points MOS
-    # labelled static, so that moving objects never enter the map the next scans register to.
-    map_update: str = "all"
+    max_translation_jump: float = knob(5.0, "a larger motion per 0.1 s between two processed scans (m) is an "
+                                            "odometry failure: the scan buffer is reset", min=0.0, above=True)
+    map_update: str = knob("all", "what enters KISS-ICP's map: every point, or only those labelled static",
+                           choices=("all", "static"))
 
     def __post_init__(self) -> None:
-        if self.map_update not in ("all", "static"):
-            raise ConfigError(f"odometry map_update must be 'all' or 'static', got {self.map_update!r}")
-        check_finite("odometry", max_range=self.max_range, min_range=self.min_range, voxel_size=self.voxel_size,
-                     max_translation_jump=self.max_translation_jump)
-        if self.max_range > MAX_RANGE_LIMIT:
-            raise ConfigError(f"odometry max_range must be <= {MAX_RANGE_LIMIT:g} m, got {self.max_range}")
-        if not (0.0 <= self.min_range < self.max_range):
+        check_knobs(self, "odometry")
+        if not self.min_range < self.max_range:
             raise ConfigError(f"odometry: need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
-        if not 1 <= self.point_stride <= 16:
-            raise ConfigError(f"odometry point_stride must be in 1..16, got {self.point_stride}")
-        if self.max_points_per_voxel < 1:
-            raise ConfigError(f"odometry max_points_per_voxel must be >= 1, got {self.max_points_per_voxel}")
-        if self.voxel_size is not None and self.voxel_size <= 0:
-            raise ConfigError(f"odometry voxel_size must be positive, got {self.voxel_size}")
-        if self.max_translation_jump <= 0:
-            raise ConfigError(f"odometry max_translation_jump must be positive, got {self.max_translation_jump}")
 
 
 @dataclass(frozen=True)
@@ -266,63 +288,33 @@ class MosConfig:
     """Everything the pipeline needs besides the model file.
 
     ``sensor`` None means: take the sensor the model was trained for (from its metadata).
-    ``threshold`` is the moving probability at or above which a point is labelled moving;
-    0 takes the model's own recommended threshold (tuned on its validation data, stored
-    in its metadata), or 0.5 for a model without one.
+    ``threshold`` 0 takes the model's own recommended threshold (tuned on its validation
+    data, stored in its metadata), or 0.5 for a model without one.
     """
 
-    model: str | None = None
+    model: str | None = knob(None, "ONNX model exported by `ros2-mos export`; empty = the model shipped with the "
+                                   "package", kind=str, unset="")
     sensor: SensorConfig | None = None
     residuals: ResidualConfig = field(default_factory=ResidualConfig)
     postprocess: PostprocessConfig = field(default_factory=PostprocessConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
-    threshold: float = 0.0
-    intra_op_threads: int = 0
-    # 'numpy' (default, no torch) or 'torch': residual images and the kNN vote as torch ops on
-    # ``device`` ('auto' = CUDA when present) -- on a GPU these, not the CNN, dominate.
-    geometry_backend: str = "numpy"
-    device: str = "auto"
-    # Keep freed heap blocks mapped (glibc mallopt, process-wide): see ros2_mos.memory (its cost: README, Speed).
-    tune_malloc: bool = True
+    threshold: float = knob(0.0, "moving probability at or above which a point is labelled moving; 0 = the model's "
+                                 "recommended threshold (0.5 if none)", min=0.0, max=1.0)
+    intra_op_threads: int = knob(0, "ONNX Runtime threads; 0 = runtime default", min=0, max=256)
+    # On a GPU the residual images and the kNN vote, not the CNN, dominate.
+    geometry_backend: str = knob("numpy", "residual images and kNN in numpy, or in torch (GPU path; needs torch "
+                                          "installed)", choices=("numpy", "torch"))
+    device: str = knob("auto", "torch device of the torch geometry backend: auto (CUDA when present), cpu, cuda")
+    # ros2_mos.memory (its cost: benchmarks/bench.md).
+    tune_malloc: bool = knob(True, "keep freed heap memory mapped (glibc mallopt, whole process): saves page "
+                                   "faults per scan")
 
     def __post_init__(self) -> None:
-        if self.geometry_backend not in ("numpy", "torch"):
-            raise ConfigError(f"geometry_backend must be 'numpy' or 'torch', got {self.geometry_backend!r}")
+        check_knobs(self, "mos")
         if not re.fullmatch(r"auto|cpu|cuda(:[0-9]+)?", str(self.device)):
             raise ConfigError(f"device must be auto, cpu, cuda or cuda:N, got {self.device!r}")
-        check_finite("mos", threshold=self.threshold)
-        if not 0.0 <= self.threshold < 1.0:
+        if self.threshold == 1.0:
             raise ConfigError(f"threshold must be in (0, 1), or 0 for the model's own, got {self.threshold}")
-        if self.intra_op_threads < 0:
-            raise ConfigError(f"intra_op_threads must be >= 0 (0 = runtime default), got {self.intra_op_threads}")
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "MosConfig":
-        data = dict(data)
-        sensor = data.pop("sensor", None)
-        if isinstance(sensor, str):
-            sensor_cfg: SensorConfig | None = sensor_preset(sensor)
-        elif isinstance(sensor, Mapping):
-            sensor_cfg = SensorConfig.from_dict(sensor)
-        elif sensor is None:
-            sensor_cfg = None
-        else:
-            raise ConfigError(f"sensor must be a preset name or a mapping, got {type(sensor).__name__}")
-        parts = {
-            "residuals": ResidualConfig,
-            "postprocess": PostprocessConfig,
-            "odometry": OdometryConfig,
-        }
-        kwargs: dict[str, Any] = {"sensor": sensor_cfg}
-        for key, klass in parts.items():
-            if key in data:
-                kwargs[key] = _from_mapping(klass, data.pop(key) or {}, key)
-        kwargs.update(data)
-        return _from_mapping(cls, kwargs, "mos", allow_objects=True)
-
-    @classmethod
-    def from_yaml(cls, path: str | Path) -> "MosConfig":
-        return cls.from_dict(read_yaml_mapping(path, "config file"))
 
 
 def _from_mapping(cls: type, data: Mapping[str, Any], what: str, allow_objects: bool = False) -> Any:

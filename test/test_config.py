@@ -1,11 +1,19 @@
-"""Configuration: presets, fov estimation, YAML round trip and rejection of bad values."""
+"""Configuration: presets, fov estimation, and rejection of bad values."""
 
 import re
 
 import numpy as np
 import pytest
 
-from ros2_mos.config import SENSOR_PRESETS, MosConfig, SensorConfig, estimate_fov, sensor_preset
+from ros2_mos.config import (
+    SENSOR_PRESETS,
+    MosConfig,
+    OdometryConfig,
+    PostprocessConfig,
+    SensorConfig,
+    estimate_fov,
+    sensor_preset,
+)
 from ros2_mos.errors import ConfigError
 
 
@@ -35,31 +43,36 @@ def test_estimate_fov_from_a_scan():
     assert up == pytest.approx(2.1, abs=0.1) and down == pytest.approx(-24.9, abs=0.1)
 
 
-def test_yaml_config_with_preset_and_nested_sections(tmp_path):
-    path = tmp_path / "mos.yaml"
-    path.write_text("sensor: vlp16\nthreshold: 0.6\npostprocess: {k: 3, window: 3}\nodometry: {max_range: 60.0}\n")
-    cfg = MosConfig.from_yaml(path)
-    assert cfg.sensor == sensor_preset("vlp16") and cfg.threshold == 0.6
-    assert cfg.postprocess.k == 3 and cfg.odometry.max_range == 60.0
-
-
 @pytest.mark.parametrize(
-    "text, message",
-    [("threshold: 1.5\n", "threshold"), ("knn: 3\n", "unknown keys"), ("postprocess: {mode: foo}\n", "mode"),
-     ("sensor: {beams: 64}\n", "sensor: unknown keys"), ("- a\n", "mapping"),
-     ("odometry: {point_stride: 0}\n", "point_stride"),
-     ("odometry: {max_points_per_voxel: 0}\n", "max_points_per_voxel")],
+    "build, message",
+    [
+        (lambda: PostprocessConfig(mode="foo"), "postprocess mode must be one of knn, nearest; got 'foo'"),
+        (lambda: PostprocessConfig(sigma=0.0), "postprocess sigma must be > 0, got 0.0"),
+        (lambda: PostprocessConfig(k=1.5), "postprocess k must be an integer, got 1.5"),
+        (lambda: PostprocessConfig(temporal_weight=float("nan")), "postprocess temporal_weight must be a finite"),
+        (lambda: OdometryConfig(point_stride=0), "odometry point_stride must be >= 1, got 0"),
+        (lambda: OdometryConfig(max_points_per_voxel=1001), "odometry max_points_per_voxel must be <= 1000"),
+        (lambda: OdometryConfig(voxel_size=0.0), "odometry voxel_size must be > 0, got 0.0"),
+        (lambda: OdometryConfig(deskew=1), "odometry deskew must be a bool, got 1"),
+        (lambda: MosConfig(threshold=1.5), "mos threshold must be <= 1, got 1.5"),
+        (lambda: MosConfig(geometry_backend="jax"), "mos geometry_backend must be one of numpy, torch"),
+        (lambda: SensorConfig(max_range=float("inf")), "sensor 'hdl64': max_range must be a finite number"),
+    ],
 )
-def test_bad_yaml_values_are_rejected_with_the_key_named(tmp_path, text, message):
-    path = tmp_path / "bad.yaml"
-    path.write_text(text)
-    with pytest.raises(ConfigError, match=message):
-        MosConfig.from_yaml(path)
+def test_each_knob_is_checked_from_its_one_definition(build, message):
+    """Issue 17.2: type, limits and choices live in the dataclass field (config.knob) and nowhere else."""
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        build()
 
 
-def test_missing_config_file(tmp_path):
-    with pytest.raises(ConfigError, match="not found"):
-        MosConfig.from_yaml(tmp_path / "none.yaml")
+def test_optional_knobs_accept_none_and_ros_params_derive_from_the_same_knob():
+    from ros2_mos.ros.params import SPECS
+
+    assert OdometryConfig(voxel_size=None).voxel_size is None and MosConfig(model=None).model is None
+    spec = SPECS["postprocess.window"]
+    assert (spec.type, spec.default, spec.min, spec.max) == (int, 5, 1, 15)
+    assert SPECS["odometry.voxel_size"].default == 0.0 and SPECS["model"].default == ""
+    assert SPECS["sensor.height"].description == "custom sensor: range image rows (beams)"
 
 
 def test_yaml_files_that_cannot_be_read_are_one_line_errors(tmp_path):

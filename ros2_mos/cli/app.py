@@ -20,6 +20,11 @@ app = typer.Typer(
 )
 
 
+#: The node's ROS params file: one option, one name, in every command that runs the pipeline.
+PARAMS_OPTION = typer.Option(None, "--params", help="The node's ROS params file (config/mos.yaml; `ros2-mos params` "
+                                                    "prints one); default: built-in defaults")
+
+
 def fail(message: str, code: int = 1) -> NoReturn:
     """Print a one-line error to stderr and exit: the only place the CLI chooses exit codes."""
     typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)

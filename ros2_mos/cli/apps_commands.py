@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app, check_output, fail
+from ros2_mos.cli.app import PARAMS_OPTION, app, check_output, fail
 
 
 def _fmt(value: float, digits: int = 2) -> str:
@@ -32,7 +32,7 @@ def odometry(
     mask: str = typer.Option("all",
                              help="none | mos | gt | gt-map | all (or a comma list): what is kept out of KISS-ICP"),
     model: Optional[Path] = typer.Option(None, help="ONNX model for --mask mos (default: the shipped model)"),
-    config: Optional[Path] = typer.Option(None, help="Pipeline YAML (odometry settings apply to every mask)"),
+    params: Optional[Path] = PARAMS_OPTION,
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences of a dataset root"),
     segments: str = typer.Option("100,200,300,400,500,600,700,800", help="Segment lengths in m (KITTI: 100..800)"),
     alignment: str = typer.Option("se3", help="ATE alignment: se3 (Umeyama, no scale) | first | none"),
@@ -55,7 +55,7 @@ def odometry(
 
     masks = parse_masks(mask)
     lengths = _lengths(segments)
-    cfg = load_config(config, model)
+    cfg = load_config(params, model)
     mos_model = MosModel(cfg.model, intra_op_threads=cfg.intra_op_threads) if "mos" in masks else None
     if mos_model is not None:
         typer.echo(f"model {mos_model.path}: {mos_model.metadata.network}, {mos_model.metadata.input.label}, "
@@ -100,7 +100,7 @@ def map_command(
     out: Path = typer.Option(..., "--out", help="map.ply or map.pcd: writes map_raw.<ext> and map_cleaned.<ext>"),
     png: Optional[Path] = typer.Option(None, "--png", help="Bird's-eye view of raw and cleaned map side by side"),
     model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped model)"),
-    config: Optional[Path] = typer.Option(None, help="Pipeline YAML"),
+    params: Optional[Path] = PARAMS_OPTION,
     voxel_size: float = typer.Option(0.1, help="Map voxel size in m (one point kept per voxel)"),
     max_range: float = typer.Option(50.0, help="Scan points farther than this (m) stay out of the maps"),
     poses: str = typer.Option("estimated", help="estimated (the pipeline's KISS-ICP) | gt (the dataset's poses.txt)"),
@@ -120,7 +120,7 @@ def map_command(
         check_output(png, "--png")
     seq = SemanticKittiSequence(sequence_dir)
     mapping = MappingConfig(voxel_size=voxel_size, max_range=max_range, poses=poses)
-    result = build_maps(seq, load_config(config, model), mapping,
+    result = build_maps(seq, load_config(params, model), mapping,
                         progress=lambda it: tqdm(it, total=len(seq), desc=f"map {seq.name}"))
     raw_path, clean_path = map_paths(out)
     write_map(raw_path, result.raw.points)

@@ -9,19 +9,18 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app, fail
+from ros2_mos.cli.app import PARAMS_OPTION, app, fail
 
 
-def load_config(config: Optional[Path], model: Optional[Path], sensor: Optional[str] = None):
+def load_config(params: Optional[Path], model: Optional[Path], sensor: Optional[str] = None):
     """The pipeline configuration of the node's params file (or the defaults), with ``--model`` on top.
 
     One file format for the node and the offline tools, so that offline results are
     those the node gives with the same file.
     """
-    from ros2_mos.ros.params import load_params_file, mos_config, replace_model
+    from ros2_mos.ros.params import load_params, mos_config
 
-    values = load_params_file(config) if config else {}
-    return mos_config(replace_model(values, None if model is None else str(model), sensor))
+    return mos_config(load_params(params, model, sensor))
 
 
 #: The --sensor option of infer, process, bench and demo.
@@ -36,8 +35,7 @@ def infer(
     out: Path = typer.Option(..., "--out", help="Output root: writes sequences/XX/predictions/*.label"),
     model: Optional[Path] = typer.Option(None,
                                          help="ONNX model exported by `ros2-mos export` (default: the shipped model)"),
-    config: Optional[Path] = typer.Option(None, help="The node's ROS params file (config/mos.yaml); "
-                                                     "default: built-in defaults"),
+    params: Optional[Path] = PARAMS_OPTION,
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences of a dataset root"),
     use_poses: bool = typer.Option(False, "--use-poses", help="Use the dataset's poses.txt instead of KISS-ICP"),
     sensor: Optional[str] = typer.Option(None, help=SENSOR_HELP),
@@ -50,7 +48,7 @@ def infer(
     from ros2_mos.metrics import MovingIoU
     from ros2_mos.pipeline import MosPipeline
 
-    pipeline = MosPipeline(load_config(config, model, sensor))
+    pipeline = MosPipeline(load_config(params, model, sensor))
     typer.echo(f"model {pipeline.model.path.name}: {pipeline.model.metadata.network}, "
                f"{pipeline.setup.label}, sensor {pipeline.sensor.name}, provider {pipeline.model.provider}")
     for seq_dir in sequence_dirs(sequence_dir, sequences):

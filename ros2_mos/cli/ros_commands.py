@@ -18,16 +18,8 @@ from typing import Any, Optional
 
 import typer
 
-from ros2_mos.cli.app import app, fail
+from ros2_mos.cli.app import PARAMS_OPTION, app, fail
 from ros2_mos.cli.core_commands import SENSOR_HELP
-
-
-def _node_values(params: Optional[Path], model: Optional[Path], sensor: Optional[str] = None) -> dict[str, Any]:
-    """Parameter values from a ROS params file (the `mos_node` section), with ``--model``, ``--sensor`` on top."""
-    from ros2_mos.ros.params import load_params_file, replace_model
-
-    values = load_params_file(params) if params is not None else {}
-    return replace_model(values, str(model) if model is not None else None, sensor)
 
 
 @app.command()
@@ -35,7 +27,7 @@ def process(
     bag_in: Path = typer.Argument(..., help="Input rosbag2 folder (mcap or sqlite3) with PointCloud2 scans"),
     bag_out: Path = typer.Argument(..., help="Output rosbag2 folder to create"),
     topic: Optional[str] = typer.Option(None, help="PointCloud2 topic (default: the bag's only one)"),
-    params: Optional[Path] = typer.Option(None, help="ROS params file, as for the node (config/mos.yaml)"),
+    params: Optional[Path] = PARAMS_OPTION,
     model: Optional[Path] = typer.Option(None, help="ONNX model (overrides the params file)"),
     storage: str = typer.Option("mcap", help="Output storage: mcap or sqlite3"),
     copy_input: bool = typer.Option(True, help="Also write the input clouds, so the bag is self-contained"),
@@ -45,10 +37,10 @@ def process(
     from ros2_mos.datasets.bags import BagWriter, pointcloud_topic
     from ros2_mos.pipeline import MosPipeline
     from ros2_mos.ros.messages import MessageTypes
-    from ros2_mos.ros.params import mos_config, node_settings
+    from ros2_mos.ros.params import load_params, mos_config, node_settings
     from ros2_mos.ros.processor import ScanProcessor
 
-    values = _node_values(params, model, sensor)
+    values = load_params(params, model, sensor)
     settings = node_settings(values)
     processor = ScanProcessor(MosPipeline(mos_config(values)), settings, MessageTypes.rosbags())
     in_topic = pointcloud_topic(bag_in, topic)
@@ -155,3 +147,13 @@ def replay(
         if replayer is not None:
             replayer.close()
         rclpy.try_shutdown()
+
+
+@app.command()
+def params(
+    markdown: bool = typer.Option(False, "--markdown", help="The README's table instead of the params file"),
+) -> None:
+    """Print the node's params file with every parameter at its default (config/mos.yaml), or its table."""
+    from ros2_mos.ros.params import describe, params_file_text
+
+    typer.echo(describe() if markdown else params_file_text(), nl=markdown)

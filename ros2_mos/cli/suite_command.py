@@ -7,14 +7,13 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app, fail
+from ros2_mos.cli.app import PARAMS_OPTION, app, fail
 
 
 @app.command()
 def suite(
     model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped model)"),
-    config: Optional[Path] = typer.Option(None, help="The node's ROS params file (config/mos.yaml); "
-                                                     "default: built-in defaults"),
+    params: Optional[Path] = PARAMS_OPTION,
     data: Path = typer.Option(Path("data/suite"),
                               help="Where the suite's simulated sequences live (simulated on first use)"),
     real: Path = typer.Option(Path("data/real-kitti08-dev"),
@@ -41,7 +40,7 @@ def suite(
     spec = sensor_preset(sensor)
     if spec.name != "hdl64":
         data, real = data / spec.name, None
-    pipeline = MosPipeline(load_config(config, model, spec.name))
+    pipeline = MosPipeline(load_config(params, model, spec.name))
     seeds = {k: v[:1] for k, v in SIM_SEEDS.items()} if quick else SIM_SEEDS
     typer.echo(f"model {pipeline.model.path.name}: {pipeline.model.metadata.network}, {pipeline.setup.label}, "
                f"threshold {pipeline.threshold:.2f}, sensor {pipeline.sensor.name}")
@@ -65,7 +64,7 @@ def calibrate(
     data: Path = typer.Argument(..., help="SemanticKITTI-format root or one labelled sequence folder"),
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences (repeat the option)"),
     model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped model)"),
-    config: Optional[Path] = typer.Option(None, help="The node's ROS params file; default: built-in defaults"),
+    params: Optional[Path] = PARAMS_OPTION,
     use_poses: bool = typer.Option(False, "--use-poses", help="The dataset's poses.txt instead of KISS-ICP"),
     sensor: Optional[str] = typer.Option(None, help="Sensor preset (default: the model's own)"),
     write: bool = typer.Option(False, "--write", help="Store the best threshold in the model file's metadata"),
@@ -78,7 +77,7 @@ def calibrate(
     from ros2_mos.pipeline import MosPipeline
     from ros2_mos.scoring.calibration import threshold_curve
 
-    pipeline = MosPipeline(load_config(config, model, sensor))
+    pipeline = MosPipeline(load_config(params, model, sensor))
     seqs = [SemanticKittiSequence(d) for d in sequence_dirs(data, sequences)]
     with tqdm(total=sum(len(s) for s in seqs), desc="calibrate", unit="scan", leave=False) as bar:
         curve = threshold_curve(pipeline, seqs, use_poses, progress=bar.update)

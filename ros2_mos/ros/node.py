@@ -46,15 +46,8 @@ def _descriptor(spec: ParamSpec) -> Any:
     """A read-only ParameterDescriptor with the spec's documentation, choices and bounds."""
     from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-    constraints = []
-    if spec.choices:
-        constraints.append("one of: " + ", ".join(spec.choices))
-    if spec.min is not None:
-        constraints.append(f">= {spec.min}")
-    if spec.max is not None:
-        constraints.append(f"<= {spec.max}")
     desc = ParameterDescriptor(name=spec.name, description=spec.description,
-                               additional_constraints="; ".join(constraints), read_only=True)
+                               additional_constraints=spec.constraints, read_only=True)
     if spec.min is not None and spec.max is not None:
         if spec.type is float:
             desc.floating_point_range = [FloatingPointRange(from_value=float(spec.min), to_value=float(spec.max))]

@@ -10,6 +10,7 @@ against it by the tests so the file and the defaults cannot drift apart.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -18,11 +19,13 @@ from typing import Any
 
 from ros2_mos.config import (
     SENSOR_PRESETS,
+    Knob,
     MosConfig,
     OdometryConfig,
     PostprocessConfig,
     ResidualConfig,
     SensorConfig,
+    knobs,
     read_yaml_mapping,
     sensor_preset,
 )
@@ -36,110 +39,106 @@ OUTPUT_KEYS: tuple[str, ...] = ("static_points", "moving_points", "labels", "ran
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One ROS parameter: name, default (its type is the parameter's type), doc, bounds or choices."""
+    """One ROS parameter: its name, its default (whose type is the parameter's type) and its :class:`Knob`."""
 
     name: str
     default: bool | int | float | str
-    description: str
-    choices: tuple[str, ...] = ()
-    min: float | None = None
-    max: float | None = None
+    knob: Knob
 
     @property
     def type(self) -> type:
         return type(self.default)
 
+    @property
+    def description(self) -> str:
+        return self.knob.description
 
-_DEF_RES, _DEF_POST, _DEF_ODOM, _DEF_MOS = ResidualConfig(), PostprocessConfig(), OdometryConfig(), MosConfig()
+    @property
+    def choices(self) -> tuple[str, ...]:
+        return self.knob.choices
+
+    @property
+    def min(self) -> float | None:
+        return self.knob.min
+
+    @property
+    def max(self) -> float | None:
+        return self.knob.max
+
+    @property
+    def constraints(self) -> str:
+        """The limits in words ("one of: a, b", ">= 1; <= 16"), for descriptors, the params file and the README."""
+        parts = ["one of: " + ", ".join(self.choices)] if self.choices else []
+        if self.min is not None:
+            parts.append(f"{'>' if self.knob.above else '>='} {self.min:g}")
+        if self.max is not None:
+            parts.append(f"<= {self.max:g}")
+        return "; ".join(parts)
+
+
+def _param(name: str, default: bool | int | float | str, description: str, **limits: Any) -> ParamSpec:
+    """A parameter of the node alone (not of the pipeline)."""
+    return ParamSpec(name, default, Knob(type(default), description, **limits))
+
+
+def _pipeline_params(prefix: str, cls: type, skip: tuple[str, ...] = (), describe: str = "") -> list[ParamSpec]:
+    """The ROS parameters of a configuration dataclass: one per :class:`Knob` field, named ``prefix + field``."""
+    specs = []
+    for f, knob in knobs(cls):
+        if f.name in skip:
+            continue
+        default = knob.unset if f.default is None else f.default
+        if knob.kind is float:
+            default = float(default)
+        specs.append(ParamSpec(prefix + f.name, default, dataclasses.replace(knob, description=describe +
+                                                                             knob.description)))
+    return specs
+
+
+_MOS_TOP = ("model", "threshold", "intra_op_threads", "geometry_backend", "device", "tune_malloc")
 
 PARAMS: tuple[ParamSpec, ...] = (
-    # --- pipeline
-    ParamSpec("model", "", "ONNX model exported by `ros2-mos export`; empty = the model shipped with the package"),
-    ParamSpec("sensor.preset", "",
-              "Sensor preset (" + ", ".join(SENSOR_PRESETS) + "), 'custom' for the sensor.* values, "
-              "or empty for the sensor the model was trained for"),
-    ParamSpec("sensor.height", 64, "custom sensor: range image rows (beams)", min=1, max=1024),
-    ParamSpec("sensor.width", 2048, "custom sensor: range image columns", min=1, max=16384),
-    ParamSpec("sensor.fov_up_deg", 3.0, "custom sensor: elevation of the top row (deg)", min=-90.0, max=90.0),
-    ParamSpec("sensor.fov_down_deg", -25.0, "custom sensor: elevation of the bottom row (deg)", min=-90.0, max=90.0),
-    ParamSpec("sensor.min_range", 0.0, "custom sensor: points closer than this are left out (m)", min=0.0),
-    ParamSpec("sensor.max_range", 120.0, "custom sensor: points farther than this are left out (m)", min=0.0),
-    ParamSpec("threshold", _DEF_MOS.threshold,
-              "moving probability at or above which a point is labelled moving; "
-              "0 = the model's recommended threshold (0.5 if none)", min=0.0, max=1.0),
-    ParamSpec("intra_op_threads", _DEF_MOS.intra_op_threads, "ONNX Runtime threads; 0 = runtime default",
-              min=0, max=256),
-    ParamSpec("geometry_backend", _DEF_MOS.geometry_backend,
-              "residual images and kNN in numpy, or in torch (GPU path; needs torch installed)",
-              choices=("numpy", "torch")),
-    ParamSpec("device", _DEF_MOS.device,
-              "torch device of the torch geometry backend: auto (CUDA when present), cpu, cuda"),
-    ParamSpec("tune_malloc", _DEF_MOS.tune_malloc,
-              "keep freed heap memory mapped (glibc mallopt, whole process): saves ~7 ms of page faults per scan"),
-    ParamSpec("residuals.min_range", _DEF_RES.min_range, "residuals only where both ranges exceed this (m)", min=0.0),
-    ParamSpec("residuals.max_range", _DEF_RES.max_range, "residuals only where both ranges are below this (m)",
-              min=0.0),
-    ParamSpec("postprocess.mode", _DEF_POST.mode, "label back-projection: kNN over the range image or nearest pixel",
-              choices=("knn", "nearest")),
-    ParamSpec("postprocess.k", _DEF_POST.k, "kNN: neighbours that vote", min=1, max=225),
-    ParamSpec("postprocess.window", _DEF_POST.window, "kNN: odd search window size (pixels)", min=1, max=15),
-    ParamSpec("postprocess.sigma", _DEF_POST.sigma, "kNN: Gaussian weight of the window", min=0.0),
-    ParamSpec("postprocess.cutoff", _DEF_POST.cutoff, "kNN: neighbours farther than this in range do not vote (m)",
-              min=0.0),
-    ParamSpec("postprocess.segment_fill", _DEF_POST.segment_fill,
-              "a connected non-ground range-image segment at least this share moving is labelled moving whole; "
-              "0 = off", min=0.0, max=1.0),
-    ParamSpec("postprocess.min_region_pixels", _DEF_POST.min_region_pixels,
-              "connected moving range-image regions smaller than this (pixels of a 64 x 2048 image, scaled for "
-              "others) are labelled static; 0 = off",
-              min=0, max=10000),
-    ParamSpec("postprocess.temporal_weight", _DEF_POST.temporal_weight,
-              "temporal fusion: share of the last scan's moving belief (log-odds) at the same surface carried into "
-              "this scan's; 0 = off", min=0.0, max=1.0),
-    ParamSpec("odometry.max_range", _DEF_ODOM.max_range, "KISS-ICP: ignore points beyond (m)", min=0.0),
-    ParamSpec("odometry.min_range", _DEF_ODOM.min_range, "KISS-ICP: ignore points closer than (m)", min=0.0),
-    ParamSpec("odometry.voxel_size", 0.0, "KISS-ICP voxel size (m); 0 = max_range / 100", min=0.0),
-    ParamSpec("odometry.max_points_per_voxel", _DEF_ODOM.max_points_per_voxel,
-              "KISS-ICP: map points kept per voxel (KISS-ICP's own default is 20; fewer is faster)", min=1, max=1000),
-    ParamSpec("odometry.point_stride", _DEF_ODOM.point_stride,
-              "KISS-ICP registers every k-th point of the scan (1 = all; MOS still labels every point)", min=1, max=16),
-    ParamSpec("odometry.deskew", _DEF_ODOM.deskew, "KISS-ICP constant-velocity deskewing"),
-    ParamSpec("odometry.max_translation_jump", _DEF_ODOM.max_translation_jump,
-              "a larger motion per 0.1 s between two processed scans (m) is an odometry failure: "
-              "the scan buffer is reset", min=0.0),
-    ParamSpec("odometry.map_update", _DEF_ODOM.map_update,
-              "what enters KISS-ICP's map: every point, or only those labelled static", choices=("all", "static")),
+    # --- pipeline (ros2_mos.config: the dataclasses define these)
+    *_pipeline_params("", MosConfig, skip=_MOS_TOP[1:]),
+    _param("sensor.preset", "",
+           "Sensor preset (" + ", ".join(SENSOR_PRESETS) + "), 'custom' for the sensor.* values, "
+           "or empty for the sensor the model was trained for"),
+    *_pipeline_params("sensor.", SensorConfig, describe="custom sensor: "),
+    *_pipeline_params("", MosConfig, skip=_MOS_TOP[:1]),
+    *_pipeline_params("residuals.", ResidualConfig),
+    *_pipeline_params("postprocess.", PostprocessConfig),
+    *_pipeline_params("odometry.", OdometryConfig),
     # --- input
-    ParamSpec("input_topic", "/points", "PointCloud2 input topic (remapping works too)"),
-    ParamSpec("qos.reliability", "best_effort", "input QoS: best_effort (sensor data: newest scan only) or reliable",
-              choices=("best_effort", "reliable")),
-    ParamSpec("qos.depth", 1, "input QoS history depth", min=1, max=100),
-    ParamSpec("qos.publish_depth", 2, "history depth of the (reliable) output publishers", min=1, max=100),
-    ParamSpec("min_points", 100, "clouds with fewer finite points are skipped with a warning", min=1),
-    ParamSpec("reset_after_gap", 1.0,
-              "a gap between scans longer than this (s), e.g. a silent driver, resets the scan buffer; 0 = never",
-              min=0.0),
-    ParamSpec("publish_incomplete", True,
-              "publish labels while fewer than N past scans exist (sequence start, after a reset); "
-              "they are flagged degraded in the diagnostics either way"),
+    _param("input_topic", "/points", "PointCloud2 input topic (remapping works too)"),
+    _param("qos.reliability", "best_effort", "input QoS: best_effort (sensor data: newest scan only) or reliable",
+           choices=("best_effort", "reliable")),
+    _param("qos.depth", 1, "input QoS history depth", min=1, max=100),
+    _param("qos.publish_depth", 2, "history depth of the (reliable) output publishers", min=1, max=100),
+    _param("min_points", 100, "clouds with fewer finite points are skipped with a warning", min=1),
+    _param("reset_after_gap", 1.0,
+           "a gap between scans longer than this (s), e.g. a silent driver, resets the scan buffer; 0 = never",
+           min=0.0),
+    _param("publish_incomplete", True,
+           "publish labels while fewer than N past scans exist (sequence start, after a reset); "
+           "they are flagged degraded in the diagnostics either way"),
     # --- outputs
-    *(ParamSpec(f"topics.{key}", f"/mos/{key}", f"output topic of {key.replace('_', ' ')}") for key in OUTPUT_KEYS),
-    ParamSpec("odom_frame", "odom", "frame of /mos/odometry and the parent of the published transform"),
-    ParamSpec("sensor_frame", "", "child frame of the odometry/transform; empty = the input cloud's frame_id"),
-    ParamSpec("publish_tf", True, "publish odom -> sensor on /tf (where tf2_msgs is installed)"),
-    ParamSpec("diagnostics_period", 1.0, "seconds between /diagnostics messages", min=0.1, max=3600.0),
-    ParamSpec("log_period", 10.0, "seconds between statistics log lines; 0 = never", min=0.0, max=86400.0),
+    *(_param(f"topics.{key}", f"/mos/{key}", f"output topic of {key.replace('_', ' ')}") for key in OUTPUT_KEYS),
+    _param("odom_frame", "odom", "frame of /mos/odometry and the parent of the published transform"),
+    _param("sensor_frame", "", "child frame of the odometry/transform; empty = the input cloud's frame_id"),
+    _param("publish_tf", True, "publish odom -> sensor on /tf (where tf2_msgs is installed)"),
+    _param("diagnostics_period", 1.0, "seconds between /diagnostics messages", min=0.1, max=3600.0),
+    _param("log_period", 10.0, "seconds between statistics log lines; 0 = never", min=0.0, max=86400.0),
     # --- cleaned local map (the paper's clean-map application, online)
-    ParamSpec("static_map.enabled", False, "publish a voxel map of the static points around the sensor"),
-    ParamSpec("static_map.topic", "/mos/static_map", "output topic of the static map (PointCloud2 in odom_frame)"),
-    ParamSpec("static_map.voxel_size", 0.25, "static map: one point per voxel of this size (m)", min=0.01, max=10.0),
-    ParamSpec("static_map.max_radius", 60.0, "static map: points farther than this from the sensor are dropped (m)",
-              min=1.0),
-    ParamSpec("static_map.max_points", 300000, "static map: at most this many points (the nearest are kept)",
-              min=1000),
-    ParamSpec("static_map.insert_every", 3, "static map: add the static points of every n-th processed scan",
-              min=1, max=100),
-    ParamSpec("static_map.publish_period", 1.0, "static map: seconds between publications", min=0.1, max=3600.0),
+    _param("static_map.enabled", False, "publish a voxel map of the static points around the sensor"),
+    _param("static_map.topic", "/mos/static_map", "output topic of the static map (PointCloud2 in odom_frame)"),
+    _param("static_map.voxel_size", 0.25, "static map: one point per voxel of this size (m)", min=0.01, max=10.0),
+    _param("static_map.max_radius", 60.0, "static map: points farther than this from the sensor are dropped (m)",
+           min=1.0),
+    _param("static_map.max_points", 300000, "static map: at most this many points (the nearest are kept)",
+           min=1000),
+    _param("static_map.insert_every", 3, "static map: add the static points of every n-th processed scan",
+           min=1, max=100),
+    _param("static_map.publish_period", 1.0, "static map: seconds between publications", min=0.1, max=3600.0),
 )
 
 SPECS: dict[str, ParamSpec] = {p.name: p for p in PARAMS}
@@ -190,12 +189,8 @@ def check_value(spec: ParamSpec, value: Any) -> Any:
         raise ConfigError(
             f"parameter {spec.name!r} must be a {spec.type.__name__}, got {value!r} ({type(value).__name__})"
         )
-    if spec.choices and value not in spec.choices:
-        raise ConfigError(f"parameter {spec.name!r} must be one of {', '.join(spec.choices)}; got {value!r}")
-    if spec.min is not None and value < spec.min:
-        raise ConfigError(f"parameter {spec.name!r} must be >= {spec.min}, got {value!r}")
-    if spec.max is not None and value > spec.max:
-        raise ConfigError(f"parameter {spec.name!r} must be <= {spec.max}, got {value!r}")
+    if spec.knob.unset is None or value != spec.knob.unset:  # the unset value stands for None ("" model: shipped)
+        spec.knob.check("parameter", repr(spec.name), value)
     return value
 
 
@@ -214,33 +209,29 @@ def _sensor(values: Mapping[str, Any]) -> SensorConfig | None:
     if name == "":
         return None
     if name == "custom":
-        return SensorConfig(
-            name="custom",
-            **{k.split(".", 1)[1]: values[k] for k in values if k.startswith("sensor.") and k != "sensor.preset"},
-        )
+        return SensorConfig(name="custom", **_section(SensorConfig, values, "sensor."))
     return sensor_preset(name)
+
+
+def _section(cls: type, values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """The keyword arguments of a configuration dataclass out of resolved parameters (a knob's unset value: None)."""
+    out = {}
+    for f, knob in knobs(cls):
+        if prefix + f.name in values:
+            value = values[prefix + f.name]
+            out[f.name] = None if knob.unset is not None and value == knob.unset else value
+    return out
 
 
 def mos_config(values: Mapping[str, Any]) -> MosConfig:
     """The pipeline configuration the parameters describe (ConfigError on invalid combinations)."""
     v = resolve(values)
-
-    def group(prefix: str) -> dict[str, Any]:
-        return {k.split(".", 1)[1]: val for k, val in v.items() if k.startswith(prefix + ".")}
-
-    odometry = group("odometry")
-    odometry["voxel_size"] = odometry["voxel_size"] or None
     return MosConfig(
-        model=v["model"] or None,
         sensor=_sensor(v),
-        residuals=ResidualConfig(**group("residuals")),
-        postprocess=PostprocessConfig(**group("postprocess")),
-        odometry=OdometryConfig(**odometry),
-        threshold=v["threshold"],
-        intra_op_threads=v["intra_op_threads"],
-        geometry_backend=v["geometry_backend"],
-        device=v["device"],
-        tune_malloc=v["tune_malloc"],
+        residuals=ResidualConfig(**_section(ResidualConfig, v, "residuals.")),
+        postprocess=PostprocessConfig(**_section(PostprocessConfig, v, "postprocess.")),
+        odometry=OdometryConfig(**_section(OdometryConfig, v, "odometry.")),
+        **_section(MosConfig, v),
     )
 
 
@@ -341,24 +332,66 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
 
 def describe() -> str:
     """A Markdown table of the parameters (for the README)."""
-    rows = ["| parameter | default | description |", "|---|---|---|"]
+    rows = ["| parameter | default | limits | description |", "|---|---|---|---|"]
     for p in PARAMS:
-        extra = f" ({'/'.join(p.choices)})" if p.choices else ""
-        rows.append(f"| `{p.name}` | `{p.default!r}` | {p.description}{extra} |")
+        rows.append(f"| `{p.name}` | `{p.default!r}` | {p.constraints} | {p.description} |")
     return "\n".join(rows)
 
 
-def replace_model(values: Mapping[str, Any], model: str | None, sensor: str | None = None) -> dict[str, Any]:
-    """``values`` with ``model`` and ``sensor.preset`` set (CLI ``--model``, ``--sensor`` on top of a params file)."""
-    out = dict(values)
+def params_file_text(node_name: str = NODE_NAME) -> str:
+    """config/mos.yaml: every parameter at its default, nested as ROS params files are, each with its documentation.
+
+    ``ros2-mos params`` prints it; the tests check the shipped file against it.
+    """
+    lines = [
+        "# Parameters of mos_node, at their defaults: `mos_node --ros-args --params-file config/mos.yaml`",
+        "# (`ros2 run ros2_mos mos_node ...` on a ROS install). Every command that runs the pipeline reads the same",
+        "# file with --params (`ros2-mos infer/process/map/odometry/suite/calibrate --params config/mos.yaml`).",
+        "# Generated from ros2_mos/config.py and ros2_mos/ros/params.py by `ros2-mos params > config/mos.yaml`.",
+        f"{node_name}:",
+        "  ros__parameters:",
+    ]
+    opened: list[str] = []
+    for p in PARAMS:
+        *groups, leaf = p.name.split(".")
+        common = 0
+        while common < min(len(opened), len(groups)) and opened[common] == groups[common]:
+            common += 1
+        opened = opened[:common]
+        for group in groups[common:]:
+            lines.append("    " + "  " * len(opened) + f"{group}:")
+            opened.append(group)
+        indent = "    " + "  " * len(opened)
+        limits = f" ({p.constraints})" if p.constraints else ""
+        lines.append(f"{indent}# {p.description}{limits}")
+        lines.append(f"{indent}{leaf}: {_yaml_value(p.default)}")
+    return "\n".join(lines) + "\n"
+
+
+def _yaml_value(value: bool | int | float | str) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return repr(value)
+
+
+def load_params(path: str | Path | None = None, model: str | Path | None = None,
+                sensor: str | None = None) -> dict[str, Any]:
+    """The parameter values of a params file (none: the defaults), with ``--model`` and ``--sensor`` on top.
+
+    The one loader of the node's parameters for every command; the node reads the same file through ROS.
+    """
+    values = load_params_file(path) if path is not None else {}
     if model is not None:
-        out["model"] = model
+        values["model"] = str(model)
     if sensor is not None:
-        out["sensor.preset"] = sensor
-    return out
+        values["sensor.preset"] = sensor
+    return values
 
 
 __all__ = [
     "NODE_NAME", "OUTPUT_KEYS", "PARAMS", "SPECS", "NodeSettings", "ParamSpec", "StaticMapSettings", "check_value",
-    "defaults", "describe", "load_params_file", "mos_config", "node_settings", "resolve", "replace_model",
+    "defaults", "describe", "load_params", "load_params_file", "mos_config", "node_settings", "params_file_text",
+    "resolve",
 ]
