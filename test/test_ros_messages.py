@@ -209,3 +209,30 @@ def test_processor_withholds_incomplete_labels_when_asked(tiny_model_path):
     assert out.labels_withheld
     assert not {"static_points", "moving_points", "labels", "mask"} & set(out.messages)
     assert {"odometry", "range_image"} <= set(out.messages)
+
+
+def test_outputs_are_one_table_that_the_parameters_and_builders_follow():
+    """Issue 17.3: an output is one entry of ros.outputs.OUTPUTS; its parameter and message come from it."""
+    from types import SimpleNamespace
+
+    from ros2_mos.ros.outputs import OUTPUTS, ScanContext, build_messages
+    from ros2_mos.ros.params import SPECS
+
+    types = m.MessageTypes.rosbags()
+    pts = np.array([[5.0, 0.0, 0.0], [0.0, 6.0, 0.5], [-7.0, 0.0, 1.0]], np.float32)
+    view = view_cloud(fill_xyzi(m.empty_cloud(types, m.make_header(types, 7, "a")), pts, None,
+                                field_factory=types.point_field))
+    result = SimpleNamespace(probability=np.array([0.1, 0.9, 0.2], np.float32), valid=np.ones(3, bool),
+                             range_image=np.zeros((2, 4), np.float32), mask_image=np.zeros((2, 4), np.uint8),
+                             pose=np.eye(4))
+    context = ScanContext(types, m.make_header(types, 7, "a"), m.make_header(types, 7, "odom"), "a", view,
+                          np.arange(3), np.array([False, True, False]), result)
+    messages = build_messages(context, None, withhold_labels=False, publish_tf=False)
+    assert list(messages) == [o.key for o in OUTPUTS]
+    for o in OUTPUTS:
+        assert SPECS[f"topics.{o.key}"].default == f"/mos/{o.key}"
+        assert isinstance(messages[o.key], getattr(types, o.message_type))
+    assert messages["static_points"].width == 2 and messages["moving_points"].width == 1
+    withheld = build_messages(context, None, withhold_labels=True, publish_tf=False)
+    assert set(withheld) == {o.key for o in OUTPUTS if not o.labels} == {"range_image", "odometry"}
+    assert set(build_messages(context, frozenset({"odometry"}), False, False)) == {"odometry"}

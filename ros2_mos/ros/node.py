@@ -29,9 +29,9 @@ from ros2_mos.ros import messages as m
 from ros2_mos.ros.dds import transport_summary, use_large_message_profile
 from ros2_mos.ros.diagnostics import DIAGNOSTIC_NAME, node_status
 from ros2_mos.ros.latest_queue import LatestQueue
+from ros2_mos.ros.outputs import OUTPUT_KEYS, OUTPUTS
 from ros2_mos.ros.params import (
     NODE_NAME,
-    OUTPUT_KEYS,
     PARAMS,
     ParamSpec,
     load_params_file,
@@ -108,10 +108,8 @@ class MosNode(Node):
         s = self.settings
         out_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=s.publish_depth,
                              reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-        kinds = {"static_points": self.types.point_cloud2, "moving_points": self.types.point_cloud2,
-                 "labels": self.types.point_cloud2, "range_image": self.types.image, "mask": self.types.image,
-                 "odometry": self.types.odometry}
-        self._pubs = {key: self.create_publisher(kinds[key], s.topics[key], out_qos) for key in OUTPUT_KEYS}
+        self._pubs = {o.key: self.create_publisher(getattr(self.types, o.message_type), s.topics[o.key], out_qos)
+                      for o in OUTPUTS}
         if s.publish_tf and self.types.tf_message is not None:
             tf_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
             self._pubs["tf"] = self.create_publisher(self.types.tf_message, "/tf", tf_qos)
@@ -219,7 +217,7 @@ class MosNode(Node):
         pipeline needs; odometry and tf are tiny and always published (tf has no subscriber
         count that means anything).
         """
-        lazy = {"static_points", "moving_points", "labels", "mask", "range_image"}
+        lazy = {o.key for o in OUTPUTS if o.lazy}
         return frozenset(key for key, pub in self._pubs.items()
                          if key not in lazy or pub.get_subscription_count() > 0)
 

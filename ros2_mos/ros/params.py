@@ -30,11 +30,10 @@ from ros2_mos.config import (
     sensor_preset,
 )
 from ros2_mos.errors import ConfigError
+from ros2_mos.ros.outputs import OUTPUT_KEYS, OUTPUTS
 
 NODE_NAME = "mos_node"
 
-#: Names of the published outputs; each is also the parameter suffix ``topics.<key>``.
-OUTPUT_KEYS: tuple[str, ...] = ("static_points", "moving_points", "labels", "range_image", "mask", "odometry")
 
 
 @dataclass(frozen=True)
@@ -122,7 +121,7 @@ PARAMS: tuple[ParamSpec, ...] = (
            "publish labels while fewer than N past scans exist (sequence start, after a reset); "
            "they are flagged degraded in the diagnostics either way"),
     # --- outputs
-    *(_param(f"topics.{key}", f"/mos/{key}", f"output topic of {key.replace('_', ' ')}") for key in OUTPUT_KEYS),
+    *(_param(f"topics.{o.key}", f"/mos/{o.key}", f"output topic: {o.description}") for o in OUTPUTS),
     _param("odom_frame", "odom", "frame of /mos/odometry and the parent of the published transform"),
     _param("sensor_frame", "", "child frame of the odometry/transform; empty = the input cloud's frame_id"),
     _param("publish_tf", True, "publish odom -> sensor on /tf (where tf2_msgs is installed)"),
@@ -391,7 +390,7 @@ def load_params(path: str | Path | None = None, model: str | Path | None = None,
 
 
 __all__ = [
-    "NODE_NAME", "OUTPUT_KEYS", "PARAMS", "SPECS", "NodeSettings", "ParamSpec", "StaticMapSettings", "check_value",
+    "NODE_NAME", "PARAMS", "SPECS", "NodeSettings", "ParamSpec", "StaticMapSettings", "check_value",
     "defaults", "describe", "load_params", "load_params_file", "mos_config", "node_settings", "params_file_text",
     "resolve",
 ]

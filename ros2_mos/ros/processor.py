@@ -21,6 +21,7 @@ from ros2_mos.errors import ImplausibleScanError, ScanError
 from ros2_mos.pipeline import MosPipeline, MosResult
 from ros2_mos.pointcloud2 import decode_xyz_intensity, view_cloud
 from ros2_mos.ros import messages as m
+from ros2_mos.ros.outputs import ScanContext, build_messages
 from ros2_mos.ros.params import NodeSettings
 
 
@@ -35,7 +36,7 @@ class SkippedScan(ScanError):
 
 @dataclass
 class ScanOutput:
-    """The messages one scan produced, keyed like :data:`ros2_mos.ros.params.OUTPUT_KEYS` plus ``tf``."""
+    """The messages one scan produced, keyed like :data:`ros2_mos.ros.outputs.OUTPUT_KEYS` plus ``tf``."""
 
     stamp_ns: int
     frame_id: str
@@ -126,31 +127,8 @@ class ScanProcessor:
 
     def _build(self, wanted: frozenset[str] | None, stamp: int, frame_id: str, view: Any, kept: np.ndarray,
                moving: np.ndarray, result: MosResult, withhold: bool) -> dict[str, Any]:
-        types = self.types
-
-        def want(key: str) -> bool:
-            return wanted is None or key in wanted
-
-        header = m.make_header(types, stamp, frame_id)
-        out: dict[str, Any] = {}
-        if not withhold:
-            if want("static_points"):
-                out["static_points"] = m.subset_cloud(types, header, view, kept[~moving])
-            if want("moving_points"):
-                out["moving_points"] = m.subset_cloud(types, header, view, kept[moving])
-            if want("labels"):
-                out["labels"] = m.labels_cloud(types, header, view, kept, moving.astype(np.uint8),
-                                               result.probability[result.valid])
-            if want("mask"):
-                out["mask"] = m.image_msg(types, header, (result.mask_image > 0).astype(np.uint8) * 255)
-        if want("range_image"):
-            out["range_image"] = m.image_msg(types, header, result.range_image.astype(np.float32, copy=False))
-        child = self.settings.sensor_frame or frame_id
-        odom_header = m.make_header(types, stamp, self.settings.odom_frame)
-        if want("odometry"):
-            out["odometry"] = m.odometry_msg(types, odom_header, child, result.pose)
-        if want("tf") and self.settings.publish_tf:
-            tf = m.tf_msg(types, odom_header, child, result.pose)
-            if tf is not None:
-                out["tf"] = tf
-        return out
+        context = ScanContext(
+            types=self.types, header=m.make_header(self.types, stamp, frame_id),
+            odom_header=m.make_header(self.types, stamp, self.settings.odom_frame),
+            child_frame=self.settings.sensor_frame or frame_id, view=view, kept=kept, moving=moving, result=result)
+        return build_messages(context, wanted, withhold, self.settings.publish_tf)
