@@ -22,8 +22,8 @@ setup(
     ],
     # The runtime (node, infer, eval, process, replay) needs no torch. rclpy and the message
     # packages come from a ROS 2 Jazzy install or the ros-jazzy-* PyPI wheels (requirements.txt).
-    # kiss-icp and rosbags are pinned: ros2_mos.odometry follows KISS-ICP 1.3.0's register_frame, and
-    # ros2_mos.datasets.bags writes MCAP chunk CRCs with rosbags 0.11.9's writer.
+    # kiss-icp and rosbags are pinned: ros2_mos.core.odometry follows KISS-ICP 1.3.0's register_frame, and
+    # ros2_mos.io.bags writes MCAP chunk CRCs with rosbags 0.11.9's writer.
     install_requires=["setuptools", "numpy", "pyyaml", "typer", "tqdm", "onnx", "onnxruntime", "kiss-icp==1.3.0",
                       "rosbags==0.11.9"],
     extras_require={

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ros2_mos.apps.kitti_metrics import SEGMENT_LENGTHS, evaluate_trajectory
 from ros2_mos.apps.odometry import MASKS, ground_truth_camera_poses
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_poses, sequence_dirs
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_poses, sequence_dirs
 
 SHORT = (10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0)
 

@@ -5,8 +5,8 @@ import time
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
-from ros2_mos.memory import retain_freed_memory
-from ros2_mos.pointcloud2 import decode_xyz_intensity, fill_subset, fill_with_extra_fields, fill_xyzi
+from ros2_mos.core.memory import retain_freed_memory
+from ros2_mos.io.pointcloud2 import decode_xyz_intensity, fill_subset, fill_with_extra_fields, fill_xyzi
 
 if "--no-malloc-tuning" not in sys.argv:
     retain_freed_memory()  # as the node does (tune_malloc)

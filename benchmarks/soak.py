@@ -84,7 +84,7 @@ def make_inputs(args: argparse.Namespace, tmp: Path) -> tuple[Path, Path]:
     if bag is None:
         from scenes import street_sequence
 
-        from ros2_mos.datasets.bags import write_scans_bag
+        from ros2_mos.io.bags import write_scans_bag
 
         bag = tmp / "street"
         seq = street_sequence(args.scans)
@@ -208,7 +208,7 @@ def _counts(d: dict[str, Any] | None) -> dict[str, int]:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     import rclpy
 
-    from ros2_mos.datasets.bags import iter_messages, pointcloud_topic
+    from ros2_mos.io.bags import iter_messages, pointcloud_topic
     from ros2_mos.ros import messages as m
 
     tmp = Path(tempfile.mkdtemp(prefix="mos_soak_"))

@@ -29,8 +29,8 @@ def main() -> None:
     args = parser.parse_args()
     mode, domain = args.mode, args.domain
 
-    import ros2_mos.odometry as odometry
-    import ros2_mos.pipeline as pipeline
+    import ros2_mos.core.odometry as odometry
+    import ros2_mos.core.pipeline as pipeline
 
     if mode in ("before", "sliced"):
         pipeline.implausible_message = lambda image: None

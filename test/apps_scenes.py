@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from scenes import street_sequence
 
-from ros2_mos.datasets.semantic_kitti import KITTI_TR, write_calib, write_label, write_poses, write_scan, write_times
+from ros2_mos.io.semantic_kitti import KITTI_TR, write_calib, write_label, write_poses, write_scan, write_times
 
 MOVING_CAR = 252
 BUILDING = 50

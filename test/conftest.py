@@ -15,7 +15,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from ros2_mos.config import SensorConfig  # noqa: E402
+from ros2_mos.core.config import SensorConfig  # noqa: E402
 
 TEST_SENSOR = SensorConfig(
     "test32", height=32, width=512, fov_up_deg=10.0, fov_down_deg=-20.0, min_range=0.0, max_range=100.0
@@ -28,8 +28,8 @@ def make_threshold_model(path: Path, sensor: SensorConfig = TEST_SENSOR, n_past:
     import torch
     from torch import nn
 
-    from ros2_mos.features import InputSetup
-    from ros2_mos.metadata import ModelMetadata
+    from ros2_mos.core.metadata import ModelMetadata
+    from ros2_mos.core.network_input import InputSetup
     from ros2_mos.training.export import export_onnx
 
     class ResidualThreshold(nn.Module):
@@ -55,7 +55,7 @@ def make_wrong_channels_model(path: Path) -> Path:
 
     import onnx
 
-    from ros2_mos.metadata import METADATA_KEY, ModelMetadata
+    from ros2_mos.core.metadata import METADATA_KEY, ModelMetadata
 
     make_threshold_model(path, n_past=2)
     model = onnx.load(str(path))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ros2_mos.datasets.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times
+from ros2_mos.io.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times
 
 
 def yaw_pose(x: float, y: float, yaw: float) -> np.ndarray:

@@ -9,7 +9,7 @@ from apps_scenes import write_street_sequence
 from typer.testing import CliRunner
 
 from ros2_mos.cli import app
-from ros2_mos.datasets.semantic_kitti import read_poses
+from ros2_mos.io.semantic_kitti import read_poses
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "configs" / "fastmos_vlp16.yaml"

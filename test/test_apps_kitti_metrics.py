@@ -14,8 +14,8 @@ from ros2_mos.apps.kitti_metrics import (
     trajectory_distances,
     umeyama,
 )
-from ros2_mos.datasets.semantic_kitti import KITTI_TR
-from ros2_mos.errors import DatasetError
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.semantic_kitti import KITTI_TR
 
 
 def straight(n: int, step: float, scale: float = 1.0) -> np.ndarray:

@@ -20,10 +20,10 @@ from ros2_mos.apps.mapping import (
     write_bev_png,
     write_map,
 )
-from ros2_mos.config import MosConfig, PostprocessConfig
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
-from ros2_mos.errors import ConfigError, ScanError
-from ros2_mos.labels import MOVING, to_moving_classes
+from ros2_mos.core.config import MosConfig, PostprocessConfig
+from ros2_mos.core.errors import ConfigError, ScanError
+from ros2_mos.io.labels import MOVING, to_moving_classes
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 
 # ------------------------------------------------------------------ readers written from the format specs
 

@@ -7,9 +7,9 @@ import pytest
 from apps_scenes import write_street_sequence
 
 from ros2_mos.apps.odometry import MASKS, evaluate_run, ground_truth_camera_poses, parse_masks, run_odometry
-from ros2_mos.config import MosConfig
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, write_scan
-from ros2_mos.errors import ConfigError, DatasetError
+from ros2_mos.core.config import MosConfig
+from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence, write_scan
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ros2_mos.datasets.bags import (
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.bags import (
     BagWriter,
     bag_topics,
     empty_cloud,
@@ -17,8 +18,7 @@ from ros2_mos.datasets.bags import (
     point_field,
     write_scans_bag,
 )
-from ros2_mos.errors import DatasetError
-from ros2_mos.pointcloud2 import decode_xyz_intensity, fill_subset
+from ros2_mos.io.pointcloud2 import decode_xyz_intensity, fill_subset
 
 
 def _scans(count: int = 3, n: int = 500, seed: int = 0) -> list[tuple[int, np.ndarray, np.ndarray]]:
@@ -71,13 +71,13 @@ def test_generic_writer_several_topics(tmp_path: Path) -> None:
     (stamp, points, intensity), = _scans(1)
     bag = tmp_path / "out"
     src = empty_cloud(stamp, "velodyne")
-    from ros2_mos.pointcloud2 import fill_xyzi
+    from ros2_mos.io.pointcloud2 import fill_xyzi
 
     fill_xyzi(src, points, intensity, field_factory=point_field)
     moving = fill_subset(empty_cloud(stamp, "velodyne"), src, np.arange(0, len(points), 2),
                          field_factory=point_field)
     odom_cls = msg_class("nav_msgs/msg/Odometry")
-    from ros2_mos.datasets.bags import header
+    from ros2_mos.io.bags import header
 
     ts_types = {n: msg_class(n) for n in ("geometry_msgs/msg/PoseWithCovariance",
                                           "geometry_msgs/msg/TwistWithCovariance",

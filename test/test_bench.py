@@ -3,8 +3,8 @@
 import numpy as np
 from scenes import street_sequence
 
-from ros2_mos.bench import STAGES, bench_pipeline, format_table
-from ros2_mos.datasets.bags import write_scans_bag
+from ros2_mos.io.bags import write_scans_bag
+from ros2_mos.tools.bench import STAGES, bench_pipeline, format_table
 
 
 def test_bench_pipeline_reports_every_stage(tmp_path, tiny_model_path):
@@ -39,7 +39,7 @@ def test_untrained_network_is_exported_for_timing_with_its_setup(tmp_path):
     import typer
 
     from ros2_mos.cli.bench_command import _export_untrained
-    from ros2_mos.inference import read_metadata
+    from ros2_mos.core.inference import read_metadata
 
     path = _export_untrained("fastmos:2", tmp_path)
     meta = read_metadata(path)

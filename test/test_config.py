@@ -5,7 +5,7 @@ import re
 import numpy as np
 import pytest
 
-from ros2_mos.config import (
+from ros2_mos.core.config import (
     SENSOR_PRESETS,
     MosConfig,
     OdometryConfig,
@@ -14,7 +14,7 @@ from ros2_mos.config import (
     estimate_fov,
     sensor_preset,
 )
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.errors import ConfigError
 
 
 def test_hdl64_preset_matches_lidar_mos():
@@ -77,7 +77,7 @@ def test_optional_knobs_accept_none_and_ros_params_derive_from_the_same_knob():
 
 def test_yaml_files_that_cannot_be_read_are_one_line_errors(tmp_path):
     """Issue 13.10: non-UTF-8 or invalid YAML gave a traceback in train and in every --config."""
-    from ros2_mos.config import read_yaml_mapping
+    from ros2_mos.core.config import read_yaml_mapping
 
     cases = {
         "latin1.yaml": (b"name: caf\xe9\n", "not UTF-8 text (byte 9)"),

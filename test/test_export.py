@@ -8,10 +8,10 @@ import pytest
 torch = pytest.importorskip("torch")
 ort = pytest.importorskip("onnxruntime")
 
-from ros2_mos.config import SensorConfig  # noqa: E402
-from ros2_mos.errors import ModelError  # noqa: E402
-from ros2_mos.features import InputSetup  # noqa: E402
-from ros2_mos.metadata import METADATA_KEY, ModelMetadata  # noqa: E402
+from ros2_mos.core.config import SensorConfig  # noqa: E402
+from ros2_mos.core.errors import ModelError  # noqa: E402
+from ros2_mos.core.metadata import METADATA_KEY, ModelMetadata  # noqa: E402
+from ros2_mos.core.network_input import InputSetup  # noqa: E402
 from ros2_mos.training.export import INPUT_NAME, OUTPUT_NAME, export_onnx, read_metadata  # noqa: E402
 from ros2_mos.training.nets import build_network  # noqa: E402
 

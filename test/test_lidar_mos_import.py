@@ -18,12 +18,12 @@ import pytest
 torch = pytest.importorskip("torch")
 yaml = pytest.importorskip("yaml")
 
-from ros2_mos.config import ResidualConfig, SensorConfig  # noqa: E402
-from ros2_mos.errors import ModelError  # noqa: E402
-from ros2_mos.features import assemble_input  # noqa: E402
-from ros2_mos.inference import MosModel  # noqa: E402
-from ros2_mos.projection import project  # noqa: E402
-from ros2_mos.residuals import residual_images  # noqa: E402
+from ros2_mos.core.config import ResidualConfig, SensorConfig  # noqa: E402
+from ros2_mos.core.errors import ModelError  # noqa: E402
+from ros2_mos.core.inference import MosModel  # noqa: E402
+from ros2_mos.core.network_input import assemble_input  # noqa: E402
+from ros2_mos.core.projection import project  # noqa: E402
+from ros2_mos.core.residuals import residual_images  # noqa: E402
 from ros2_mos.training.lidar_mos import import_lidar_mos, safe_load  # noqa: E402
 from ros2_mos.training.nets import build_network  # noqa: E402
 
@@ -144,7 +144,7 @@ def test_import_errors_are_one_line_model_errors(tmp_path):
 def test_network_input_follows_the_official_definitions():
     """LiDAR-MOS's parser, written out here from its definitions: [r, x, y, z, e] normalised with img_means /
     img_stds, residuals |r - r_j| / r where both ranges lie in (2, 50) m, everything times the projection mask."""
-    from ros2_mos.features import InputSetup
+    from ros2_mos.core.network_input import InputSetup
 
     sensor = SensorConfig("lidar-mos", H, W, 3.0, -25.0, 0.0, 120.0)
     rng = np.random.default_rng(0)

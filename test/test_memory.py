@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from ros2_mos import memory
+from ros2_mos.core import memory
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc", reason="glibc only")

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from ros2_mos.errors import DatasetError
-from ros2_mos.labels import IGNORE, MOVING, STATIC, to_moving_classes, to_submission
-from ros2_mos.metrics import MovingIoU
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.labels import IGNORE, MOVING, STATIC, to_moving_classes, to_submission
+from ros2_mos.scoring.metrics import MovingIoU
 
 
 def test_iou_counts_tp_fp_fn_and_skips_ignored():

@@ -6,10 +6,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from ros2_mos.config import SensorConfig  # noqa: E402
-from ros2_mos.errors import ConfigError  # noqa: E402
-from ros2_mos.features import InputSetup  # noqa: E402
-from ros2_mos.metadata import ModelMetadata  # noqa: E402
+from ros2_mos.core.config import SensorConfig  # noqa: E402
+from ros2_mos.core.errors import ConfigError  # noqa: E402
+from ros2_mos.core.metadata import ModelMetadata  # noqa: E402
+from ros2_mos.core.network_input import InputSetup  # noqa: E402
 from ros2_mos.training.export import export_onnx  # noqa: E402
 from ros2_mos.training.nets import build_network, network_names  # noqa: E402
 

@@ -5,11 +5,11 @@ import pytest
 from conftest import TEST_SENSOR, make_threshold_model, make_wrong_channels_model
 from scenes import street_sequence
 
-from ros2_mos.config import MosConfig, OdometryConfig, PostprocessConfig, SensorConfig
-from ros2_mos.errors import ConfigError, ImplausibleScanError, ModelError, ScanError
-from ros2_mos.inference import MosModel
-from ros2_mos.metrics import MovingIoU
-from ros2_mos.pipeline import MosPipeline
+from ros2_mos.core.config import MosConfig, OdometryConfig, PostprocessConfig, SensorConfig
+from ros2_mos.core.errors import ConfigError, ImplausibleScanError, ModelError, ScanError
+from ros2_mos.core.inference import MosModel
+from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.scoring.metrics import MovingIoU
 
 
 @pytest.fixture
@@ -121,7 +121,7 @@ def test_models_that_cannot_label_are_refused_at_load(tmp_path, tiny_model_path)
     import torch
     from torch import nn
 
-    from ros2_mos.inference import read_metadata
+    from ros2_mos.core.inference import read_metadata
     from ros2_mos.training.export import _torch_to_onnx_bytes, export_onnx
 
     renamed = onnx.load(str(tiny_model_path))
@@ -266,7 +266,7 @@ def test_pose_jump_limit_grows_with_the_time_since_the_last_scan(pipeline):
 def test_threshold_zero_takes_the_models_recommended_threshold(tmp_path):
     import onnx
 
-    from ros2_mos.metadata import METADATA_KEY, ModelMetadata
+    from ros2_mos.core.metadata import METADATA_KEY, ModelMetadata
 
     path = make_threshold_model(tmp_path / "m.onnx")
     assert MosPipeline(MosConfig(model=str(path))).threshold == 0.5  # no recommendation: 0.5
@@ -283,8 +283,8 @@ def test_threshold_zero_takes_the_models_recommended_threshold(tmp_path):
 def test_past_offsets_and_signed_residuals_reach_the_network(tmp_path):
     """A model taking signed residuals 1 and 3 scans back, range and z only: the pipeline keeps 3 scans,
     builds exactly those residuals, and counts how many of them had a past scan."""
-    from ros2_mos.features import InputSetup
-    from ros2_mos.residuals import residual_images
+    from ros2_mos.core.network_input import InputSetup
+    from ros2_mos.core.residuals import residual_images
 
     setup = InputSetup("residual", 2, (1, 3), signed=True, image_channels=("range", "z"))
     model = make_threshold_model(tmp_path / "offsets.onnx", setup=setup)
@@ -307,7 +307,7 @@ def test_past_offsets_and_signed_residuals_reach_the_network(tmp_path):
 def test_intensity_outside_0_1_flags_a_remission_model_but_not_a_model_without_it(tmp_path, tiny_model_path):
     """Velodyne drivers publish 0..255: a model trained on 0..1 remission gets flagged labels;
     a model that does not take remission gives the same labels whatever the scale."""
-    from ros2_mos.features import InputSetup
+    from ros2_mos.core.network_input import InputSetup
 
     scans = street_sequence(4, seed=1)
     with_rem = MosPipeline(MosConfig(model=str(tiny_model_path)))

@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sensor_msgs.msg import PointCloud2, PointField
 
-from ros2_mos.errors import ScanError
-from ros2_mos.pointcloud2 import (
+from ros2_mos.core.errors import ScanError
+from ros2_mos.io.pointcloud2 import (
     DATATYPES,
     FLOAT32,
     FLOAT64,
@@ -253,7 +253,7 @@ def test_extra_fields_for_labels(big: bool) -> None:
 
 
 def test_rosbags_messages_work_the_same() -> None:
-    from ros2_mos.datasets.bags import empty_cloud, point_field
+    from ros2_mos.io.bags import empty_cloud, point_field
 
     dt, rec = _ouster_like()
     src = fill_from_records(empty_cloud(5, "f"), rec, field_factory=point_field)

@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_pointcloud2 import FakeCloud, FakeField, clouds, reference_decode
 
-from ros2_mos.errors import ScanError
-from ros2_mos.pointcloud2 import FLOAT32, MAX_FIELDS, MAX_POINT_STEP, decode_xyz_intensity
+from ros2_mos.core.errors import ScanError
+from ros2_mos.io.pointcloud2 import FLOAT32, MAX_FIELDS, MAX_POINT_STEP, decode_xyz_intensity
 
 _BAD_INTS = st.sampled_from([-1, -(2**31), 2**64, 2**100, 1.5, float("nan"), float("inf"), "12", None, b"\x01", [3]])
 _HEADER = ("height", "width", "point_step", "row_step")

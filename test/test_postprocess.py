@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from ros2_mos.config import PostprocessConfig
-from ros2_mos.errors import ConfigError
-from ros2_mos.postprocess import backproject, knn_backproject, nearest_backproject
-from ros2_mos.projection import PixelIndex
+from ros2_mos.core.config import PostprocessConfig
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.postprocess import backproject, knn_backproject, nearest_backproject
+from ros2_mos.core.projection import PixelIndex
 
 
 def pixels(rows, cols, ranges):

@@ -8,10 +8,10 @@ from scenes import street_sequence
 from typer.testing import CliRunner
 
 from ros2_mos.cli import app
-from ros2_mos.config import MosConfig
-from ros2_mos.datasets.bags import bag_topics, iter_messages, write_scans_bag
-from ros2_mos.pipeline import MosPipeline
-from ros2_mos.pointcloud2 import view_cloud
+from ros2_mos.core.config import MosConfig
+from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.io.bags import bag_topics, iter_messages, write_scans_bag
+from ros2_mos.io.pointcloud2 import view_cloud
 
 STAMP0, PERIOD = 1_700_000_000_000_000_000, 100_000_000
 
@@ -65,7 +65,7 @@ def test_damaged_bag_is_one_line_error_and_leaves_no_output(tmp_path, tiny_model
     result = CliRunner().invoke(app, ["process", str(tmp_path / "in"), str(tmp_path / "out"),
                                       "--model", str(tiny_model_path)])
     # The console script prints a library error as one `error:` line (tested in test/e2e); here it is the error.
-    from ros2_mos.errors import DatasetError
+    from ros2_mos.core.errors import DatasetError
 
     assert isinstance(result.exception, DatasetError), result.exception
     assert "cannot open bag" in str(result.exception) and "magic" in str(result.exception)
@@ -74,7 +74,7 @@ def test_damaged_bag_is_one_line_error_and_leaves_no_output(tmp_path, tiny_model
 
 @pytest.mark.parametrize("damage", ["truncated", "zeroed"])
 def test_damaged_sqlite3_bag_is_one_line_error(tmp_path, tiny_model_path, damage):
-    from ros2_mos.errors import DatasetError
+    from ros2_mos.core.errors import DatasetError
 
     seq = street_sequence(3)
     write_scans_bag(tmp_path / "in", iter([(STAMP0 + i * PERIOD, p, r) for i, (p, r, _, _) in enumerate(seq)]),

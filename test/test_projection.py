@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from ros2_mos.config import SensorConfig
-from ros2_mos.errors import ScanError
-from ros2_mos.postprocess import nearest_backproject
-from ros2_mos.projection import azimuth, finite_mask, pixel_index, project, project_range
+from ros2_mos.core.config import SensorConfig
+from ros2_mos.core.errors import ScanError
+from ros2_mos.core.postprocess import nearest_backproject
+from ros2_mos.core.projection import azimuth, finite_mask, pixel_index, project, project_range
 
 # 10 rows of 1 degree each from +5 to -5 deg, 8 columns of 45 degrees.
 SENSOR = SensorConfig("test", height=10, width=8, fov_up_deg=5.0, fov_down_deg=-5.0, min_range=0.0, max_range=100.0)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from ros2_mos.config import ResidualConfig, SensorConfig
-from ros2_mos.residuals import past_range_image, residual_image, residual_images, transform_points
+from ros2_mos.core.config import ResidualConfig, SensorConfig
+from ros2_mos.core.residuals import past_range_image, residual_image, residual_images, transform_points
 
 SENSOR = SensorConfig("t", 32, 256, 10.0, -20.0, 0.0, 100.0)
 WINDOW = ResidualConfig(2.0, 50.0)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scenes import street_sequence
 
-from ros2_mos.config import MosConfig
-from ros2_mos.errors import ScanError
-from ros2_mos.pipeline import MosPipeline
-from ros2_mos.pointcloud2 import decode_xyz_intensity, fill_xyzi, view_cloud
+from ros2_mos.core.config import MosConfig
+from ros2_mos.core.errors import ScanError
+from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.io.pointcloud2 import decode_xyz_intensity, fill_xyzi, view_cloud
 from ros2_mos.ros import messages as m
 from ros2_mos.ros.latest_queue import LatestQueue
 from ros2_mos.ros.params import node_settings

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.errors import ConfigError
 from ros2_mos.ros.params import (
     PARAMS,
     defaults,

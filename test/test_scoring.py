@@ -7,11 +7,11 @@ import pytest
 from conftest import TEST_SENSOR, make_threshold_model
 from scenes import write_sequence
 
-from ros2_mos.config import MosConfig
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
-from ros2_mos.errors import ModelError
-from ros2_mos.metadata import check_threshold, write_recommended_threshold
-from ros2_mos.pipeline import MosPipeline
+from ros2_mos.core.config import MosConfig
+from ros2_mos.core.errors import ModelError
+from ros2_mos.core.metadata import check_threshold, write_recommended_threshold
+from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 from ros2_mos.scoring.baselines import (
     free_space_seeds,
     grow_regions,
@@ -63,8 +63,8 @@ def labelled_sequence(tmp_path_factory) -> SemanticKittiSequence:
 
 def test_calibration_curve_agrees_with_the_pipelines_labels(labelled_sequence, tiny_model_path):
     """The full kNN vote thresholded at t gives the labels the pipeline's shortcut vote gives at t."""
-    from ros2_mos.labels import to_moving_classes
-    from ros2_mos.metrics import MovingIoU
+    from ros2_mos.io.labels import to_moving_classes
+    from ros2_mos.scoring.metrics import MovingIoU
 
     for threshold in (0.3, 0.5, 0.8):
         pipe = MosPipeline(MosConfig(model=str(tiny_model_path), threshold=threshold))
@@ -120,9 +120,9 @@ def test_suite_uses_the_test_sensor(tiny_model_path):
 def test_model_metadata_with_zero_or_non_finite_stds_is_refused():
     import json
 
-    from ros2_mos.config import SensorConfig
-    from ros2_mos.features import InputSetup
-    from ros2_mos.metadata import ModelMetadata
+    from ros2_mos.core.config import SensorConfig
+    from ros2_mos.core.metadata import ModelMetadata
+    from ros2_mos.core.network_input import InputSetup
 
     good = ModelMetadata("fastmos", InputSetup("residual", 1), SensorConfig()).to_json()
     for key, value in (("stds", [1.0, 1.0, 0.0, 1.0, 1.0]), ("means", [0.0, float("nan"), 0, 0, 0]),

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from ros2_mos.config import PostprocessConfig
-from ros2_mos.errors import ConfigError
-from ros2_mos.segments import connected_regions, drop_small_regions, fill_segments
+from ros2_mos.core.config import PostprocessConfig
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.segments import connected_regions, drop_small_regions, fill_segments
 
 
 def scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:

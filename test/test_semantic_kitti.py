@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from ros2_mos.datasets.semantic_kitti import (
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.semantic_kitti import (
     KITTI_TR,
     SemanticKittiSequence,
     read_calib,
@@ -14,7 +15,6 @@ from ros2_mos.datasets.semantic_kitti import (
     write_scan,
     write_times,
 )
-from ros2_mos.errors import DatasetError
 
 
 def test_sequence_round_trip(tmp_path):

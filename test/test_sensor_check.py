@@ -1,11 +1,11 @@
-"""Which sensor a cloud comes from, from its rings and field of view (ros2_mos.sensor_check)."""
+"""Which sensor a cloud comes from, from its rings and field of view (ros2_mos.core.sensor_check)."""
 
 import numpy as np
 import pytest
 
-from ros2_mos.config import SENSOR_PRESETS, MosConfig
-from ros2_mos.projection import project
-from ros2_mos.sensor_check import (
+from ros2_mos.core.config import SENSOR_PRESETS, MosConfig
+from ros2_mos.core.projection import project
+from ros2_mos.core.sensor_check import (
     MIN_AGREEING_NEIGHBOURS,
     MIN_NEIGHBOUR_PAIRS,
     closest_preset,
@@ -70,8 +70,8 @@ def test_a_cloud_of_unknown_shape_and_a_tiny_cloud():
 
 
 def test_the_pipeline_flags_every_scan_of_a_mismatched_stream(tiny_model_path):
-    from ros2_mos.config import SensorConfig
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.config import SensorConfig
+    from ros2_mos.core.pipeline import MosPipeline
 
     test32 = MosConfig(model=str(tiny_model_path)).sensor or None
     pipeline = MosPipeline(MosConfig(model=str(tiny_model_path)))

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ros2_mos.config import SENSOR_PRESETS, SensorConfig
-from ros2_mos.datasets.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_label, read_poses
-from ros2_mos.errors import ConfigError
-from ros2_mos.labels import MOVING_IDS, instance_ids, semantic_ids
+from ros2_mos.core.config import SENSOR_PRESETS, SensorConfig
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.io.labels import MOVING_IDS, instance_ids, semantic_ids
+from ros2_mos.io.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_label, read_poses
 from ros2_mos.sim import SequenceSimulator, format_stats, sequence_dir, sim_preset, simulate_sequence, with_effects
 from ros2_mos.sim.geometry import TriangleSoup, box, quad
 from ros2_mos.sim.lidar import Lidar, beam_elevations
@@ -281,7 +281,7 @@ def test_large_trees_are_randomised_and_built_as_lumpy_scaled_crowns() -> None:
 
 
 def test_beam_layout_is_raised_and_jittered_per_sequence_and_fills_the_top_rows() -> None:
-    from ros2_mos.config import sensor_preset
+    from ros2_mos.core.config import sensor_preset
     from ros2_mos.sim.lidar import Lidar, beam_elevations
     from ros2_mos.sim.presets import SensorEffects, randomized_for_sequence
 

@@ -8,12 +8,12 @@ import numpy as np
 from typer.testing import CliRunner
 
 from ros2_mos.cli import app
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 
 
 def test_simulate_writes_sequences_stats_and_a_bag_with_the_same_points(tmp_path: Path) -> None:
-    from ros2_mos.datasets.bags import iter_pointclouds
-    from ros2_mos.pointcloud2 import decode_xyz_intensity
+    from ros2_mos.io.bags import iter_pointclouds
+    from ros2_mos.io.pointcloud2 import decode_xyz_intensity
 
     result = CliRunner().invoke(app, [
         "simulate", str(tmp_path), "--sequences", "00", "01", "--scans", "3", "--preset", "easy",

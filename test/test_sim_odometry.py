@@ -30,8 +30,8 @@ def test_kiss_icp_follows_the_ground_truth_of_a_simulated_drive() -> None:
 
 def test_kiss_icp_registers_every_kth_point_only():
     """point_stride thins what KISS-ICP sees (its map), not what MOS labels."""
-    from ros2_mos.config import OdometryConfig
-    from ros2_mos.odometry import KissIcpOdometry
+    from ros2_mos.core.config import OdometryConfig
+    from ros2_mos.core.odometry import KissIcpOdometry
 
     rng = np.random.default_rng(0)
     scan = rng.uniform(-30, 30, size=(20_000, 3))

@@ -1,4 +1,4 @@
-"""Temporal fusion (ros2_mos.temporal): the Bayes filter's arithmetic on hand-made range images."""
+"""Temporal fusion (ros2_mos.core.temporal): the Bayes filter's arithmetic on hand-made range images."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from ros2_mos.config import PostprocessConfig, SensorConfig
-from ros2_mos.errors import ConfigError
-from ros2_mos.projection import project
-from ros2_mos.temporal import MAX_BELIEF, BeliefFilter, logit, sigmoid
+from ros2_mos.core.config import PostprocessConfig, SensorConfig
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.projection import project
+from ros2_mos.core.temporal import MAX_BELIEF, BeliefFilter, logit, sigmoid
 
 # 8 beams over +-4 deg, 16 columns: a wall 10 m ahead fills the middle rows of a few columns.
 SENSOR = SensorConfig(name="tiny", height=8, width=16, fov_up_deg=4.0, fov_down_deg=-4.0, min_range=0.5,

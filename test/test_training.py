@@ -13,11 +13,11 @@ torch = pytest.importorskip("torch")
 from conftest import TEST_SENSOR  # noqa: E402
 from scenes import street_sequence, write_sequence  # noqa: E402
 
-from ros2_mos.errors import ConfigError  # noqa: E402
-from ros2_mos.features import InputSetup  # noqa: E402
-from ros2_mos.labels import IGNORE  # noqa: E402
-from ros2_mos.projection import project  # noqa: E402
-from ros2_mos.residuals import residual_images  # noqa: E402
+from ros2_mos.core.errors import ConfigError  # noqa: E402
+from ros2_mos.core.network_input import InputSetup  # noqa: E402
+from ros2_mos.core.projection import project  # noqa: E402
+from ros2_mos.core.residuals import residual_images  # noqa: E402
+from ros2_mos.io.labels import IGNORE  # noqa: E402
 from ros2_mos.training.dataset import (  # noqa: E402
     AugmentConfig,
     CacheSpec,

@@ -87,7 +87,7 @@ def main() -> int:
     start = time.monotonic()
     todo = [n for n in names if not (Path(args.data) / "sequences" / n / "poses.txt").is_file()]
     with mp.get_context("spawn").Pool(max(1, args.jobs)) as pool:
-        from ros2_mos.config import SensorConfig
+        from ros2_mos.core.config import SensorConfig
 
         sensor = base.get("sensor", "hdl64")  # a preset name, or a custom sensor's dict
         sensor = sensor if isinstance(sensor, str) else SensorConfig.from_dict(sensor)

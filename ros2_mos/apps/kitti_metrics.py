@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ros2_mos.errors import DatasetError
+from ros2_mos.core.errors import DatasetError
 
 SEGMENT_LENGTHS: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 STEP_SIZE = 10  # every 10th frame starts a segment (the devkit's step_size)

@@ -18,12 +18,12 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from ros2_mos.config import MosConfig
-from ros2_mos.datasets.semantic_kitti import Frame, SemanticKittiSequence
-from ros2_mos.errors import ConfigError, DatasetError, ScanError
-from ros2_mos.inference import MosModel
-from ros2_mos.labels import IGNORE, MOVING, to_moving_classes
-from ros2_mos.projection import finite_mask
+from ros2_mos.core.config import MosConfig
+from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
+from ros2_mos.core.inference import MosModel
+from ros2_mos.core.projection import finite_mask
+from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
+from ros2_mos.io.semantic_kitti import Frame, SemanticKittiSequence
 
 # Per-point tags a map keeps (ground truth of the scan point a map point came from).
 TAG_STATIC = 0
@@ -286,7 +286,7 @@ def build_maps(
     With ``mapping.poses='estimated'`` the poses are the pipeline's own KISS-ICP with
     ``map_update='static'`` (what the node does online); with ``'gt'`` the dataset's poses.
     """
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.pipeline import MosPipeline
 
     if mapping.poses == "gt":
         sequence.require_poses("mapping with ground-truth poses")

@@ -21,13 +21,13 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 
 from ros2_mos.apps.kitti_metrics import SEGMENT_LENGTHS, STEP_SIZE, OdometryErrors, evaluate_trajectory, to_camera_frame
-from ros2_mos.config import MosConfig
-from ros2_mos.datasets.semantic_kitti import Frame, SemanticKittiSequence, read_calib
-from ros2_mos.errors import ConfigError, DatasetError
-from ros2_mos.inference import MosModel
-from ros2_mos.labels import MOVING, to_moving_classes
-from ros2_mos.odometry import KissIcpOdometry
-from ros2_mos.projection import finite_mask
+from ros2_mos.core.config import MosConfig
+from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.core.inference import MosModel
+from ros2_mos.core.odometry import KissIcpOdometry
+from ros2_mos.core.projection import finite_mask
+from ros2_mos.io.labels import MOVING, to_moving_classes
+from ros2_mos.io.semantic_kitti import Frame, SemanticKittiSequence, read_calib
 
 MASKS: tuple[str, ...] = ("none", "mos", "gt", "gt-map")
 Progress = Callable[[Iterable[Frame]], Iterable[Frame]]
@@ -89,7 +89,7 @@ def _kiss_frames(
 def _mos_frames(
     sequence: SemanticKittiSequence, config: MosConfig, model: MosModel | None, progress: Progress
 ) -> Iterator[tuple[np.ndarray, float, float]]:
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.pipeline import MosPipeline
 
     cfg = dataclasses.replace(config, odometry=dataclasses.replace(config.odometry, map_update="static"))
     pipeline = MosPipeline(cfg, model)

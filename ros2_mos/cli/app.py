@@ -9,7 +9,7 @@ from typing import NoReturn
 
 import typer
 
-from ros2_mos.errors import MosError
+from ros2_mos.core.errors import MosError
 
 app = typer.Typer(
     name="ros2-mos",

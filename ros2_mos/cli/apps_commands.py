@@ -50,8 +50,8 @@ def odometry(
     from ros2_mos.apps.kitti_metrics import SegmentErrors
     from ros2_mos.apps.odometry import evaluate_run, parse_masks, run_odometry
     from ros2_mos.cli.core_commands import load_config
-    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_calib, sequence_dirs, write_poses
-    from ros2_mos.inference import MosModel
+    from ros2_mos.core.inference import MosModel
+    from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_calib, sequence_dirs, write_poses
 
     masks = parse_masks(mask)
     lengths = _lengths(segments)
@@ -110,7 +110,7 @@ def map_command(
 
     from ros2_mos.apps.mapping import MappingConfig, build_maps, ghost_share, map_paths, write_bev_png, write_map
     from ros2_mos.cli.core_commands import load_config
-    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
+    from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 
     if out.suffix.lower() not in (".ply", ".pcd"):
         fail(f"--out must end in .ply or .pcd, got {out.name}")

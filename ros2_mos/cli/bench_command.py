@@ -39,10 +39,10 @@ def bench(
     out: Optional[Path] = typer.Option(None, help="Also write the report (Markdown) to this file"),
 ) -> None:
     """Median / p95 ms per stage, end-to-end latency, Hz and peak RSS; reference ratio; the node under replay."""
-    from ros2_mos.bench import bench_pipeline, format_table
     from ros2_mos.cli.demo_command import ensure_sequence
-    from ros2_mos.config import sensor_preset
-    from ros2_mos.inference import default_model_path
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.core.inference import default_model_path
+    from ros2_mos.tools.bench import bench_pipeline, format_table
 
     spec = sensor_preset(sensor)
     seq_dir, bag = ensure_sequence(data, BENCH_SEQUENCE, scans + 5, BENCH_SEED, sensor=spec.name)
@@ -82,9 +82,9 @@ def bench(
 
 def _export_untrained(spec: str, folder: Path) -> Path:
     """An ONNX file of NETWORK with N residual images and random weights, for timing only."""
-    from ros2_mos.config import sensor_preset
-    from ros2_mos.features import InputSetup
-    from ros2_mos.metadata import ModelMetadata
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.core.metadata import ModelMetadata
+    from ros2_mos.core.network_input import InputSetup
     from ros2_mos.training.export import export_onnx
     from ros2_mos.training.nets import build_network, network_names
 
@@ -111,9 +111,9 @@ def _bench_reference(seq_dir: Path, scans: int):
 
 
 def _reference_worker(seq_dir: str, scans: int):
-    from ros2_mos.bench import summarise
-    from ros2_mos.config import sensor_preset
-    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+    from ros2_mos.tools.bench import summarise
     from ros2_mos.training.reference import ReferencePipeline
 
     seq = SemanticKittiSequence(seq_dir)
@@ -131,7 +131,7 @@ def _reference_worker(seq_dir: str, scans: int):
 def _bench_node(bag: Path, model: Optional[Path], sensor: str = "hdl64") -> list[str]:
     import numpy as np
 
-    from ros2_mos.ros.harness import NodeProcess, isolate_ros_domain, replay_through_node
+    from ros2_mos.tools.harness import NodeProcess, isolate_ros_domain, replay_through_node
 
     isolate_ros_domain()
     lines = ["## mos_node as a process, the bag replayed by `ros2-mos replay` (stamps = publication time)", "",

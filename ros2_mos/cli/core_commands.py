@@ -43,10 +43,10 @@ def infer(
     """Label every scan of a sequence (moving 251 / static 9, the benchmark's submission format)."""
     from tqdm import tqdm
 
-    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, sequence_dirs
-    from ros2_mos.evaluation import predict_sequence, write_prediction
-    from ros2_mos.metrics import MovingIoU
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.pipeline import MosPipeline
+    from ros2_mos.io.semantic_kitti import SemanticKittiSequence, sequence_dirs
+    from ros2_mos.scoring.evaluation import predict_sequence, write_prediction
+    from ros2_mos.scoring.metrics import MovingIoU
 
     pipeline = MosPipeline(load_config(params, model, sensor))
     typer.echo(f"model {pipeline.model.path.name}: {pipeline.model.metadata.network}, "
@@ -75,8 +75,8 @@ def evaluate(
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences"),
 ) -> None:
     """Moving IoU per sequence and over all, as the SemanticKITTI MOS benchmark defines it."""
-    from ros2_mos.evaluation import evaluate_predictions
-    from ros2_mos.metrics import MovingIoU
+    from ros2_mos.scoring.evaluation import evaluate_predictions
+    from ros2_mos.scoring.metrics import MovingIoU
 
     skipped: list[str] = []
     scores = evaluate_predictions(pred_dir, gt_dir, sequences, skipped=skipped)

@@ -59,8 +59,8 @@ def demo(
                                              "os1-128); the node uses the model shipped for it"),
 ) -> None:
     """Simulate a street, replay it as a bag through a running mos_node, print Hz, stage ms and moving IoU."""
-    from ros2_mos.config import sensor_preset
-    from ros2_mos.ros.harness import NodeProcess, isolate_ros_domain, replay_through_node
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.tools.harness import NodeProcess, isolate_ros_domain, replay_through_node
 
     sensor = sensor_preset(sensor).name  # a clear error for an unknown name, before any simulation
     seq_dir, bag = ensure_sequence(data, DEMO_SEQUENCE, scans, DEMO_SEED, sensor=sensor)
@@ -93,9 +93,9 @@ def demo(
 
 def score_line(seq_dir: Path, labels: dict[int, Any]) -> str:
     """Moving IoU of the node's labels (by scan index) against the simulator's ground truth."""
-    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_label
-    from ros2_mos.labels import to_moving_classes
-    from ros2_mos.metrics import MovingIoU
+    from ros2_mos.io.labels import to_moving_classes
+    from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label
+    from ros2_mos.scoring.metrics import MovingIoU
 
     seq = SemanticKittiSequence(seq_dir)
     score, matched = MovingIoU(), 0

@@ -34,8 +34,8 @@ def process(
     sensor: Optional[str] = typer.Option(None, help=SENSOR_HELP),
 ) -> None:
     """Run the node's pipeline offline over a bag; write static/moving/labels/images/odometry (and /tf)."""
-    from ros2_mos.datasets.bags import BagWriter, pointcloud_topic
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.pipeline import MosPipeline
+    from ros2_mos.io.bags import BagWriter, pointcloud_topic
     from ros2_mos.ros.messages import MessageTypes
     from ros2_mos.ros.params import load_params, mos_config, node_settings
     from ros2_mos.ros.processor import ScanProcessor
@@ -76,8 +76,8 @@ def _process_into(bag: Any, processor: Any, bag_in: Path, in_topic: str, topics:
     """Label every cloud of ``in_topic`` into ``bag``; (processed, skipped, moving points, points)."""
     from tqdm import tqdm
 
-    from ros2_mos.datasets.bags import iter_pointclouds
-    from ros2_mos.errors import ScanError
+    from ros2_mos.core.errors import ScanError
+    from ros2_mos.io.bags import iter_pointclouds
 
     done = skipped = moving = points = 0
     for stamp, msg in tqdm(iter_pointclouds(bag_in, in_topic), desc="process", unit="scan"):
@@ -117,7 +117,7 @@ def replay(
     max_messages: int = typer.Option(0, help="Stop after this many clouds (0 = all)"),
 ) -> None:
     """Publish a bag's PointCloud2 messages with rclpy at the recorded rate (stands in for `ros2 bag play`)."""
-    from ros2_mos.datasets.bags import pointcloud_topic
+    from ros2_mos.io.bags import pointcloud_topic
 
     if rate < 0:
         fail("--rate must be >= 0")

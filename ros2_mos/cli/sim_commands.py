@@ -35,7 +35,7 @@ def simulate(
     """Simulate a rotating LiDAR driving through traffic; write SemanticKITTI sequences with MOS labels."""
     from tqdm import tqdm
 
-    from ros2_mos.config import sensor_preset
+    from ros2_mos.core.config import sensor_preset
     from ros2_mos.sim import format_stats, sequence_dir, sim_preset, simulate_sequence, with_effects, write_sequence_bag
     from ros2_mos.sim.presets import randomized_for_sequence
 

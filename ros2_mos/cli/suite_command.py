@@ -30,12 +30,12 @@ def suite(
     from tqdm import tqdm
 
     from ros2_mos.cli.core_commands import load_config
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.pipeline import MosPipeline
     from ros2_mos.scoring.suite import SIM_SEEDS, format_table, run_suite
 
     if out is not None and out.exists() and not out.is_file():
         fail(f"--out {out} exists and is not a file")
-    from ros2_mos.config import sensor_preset
+    from ros2_mos.core.config import sensor_preset
 
     spec = sensor_preset(sensor)
     if spec.name != "hdl64":
@@ -73,8 +73,8 @@ def calibrate(
     from tqdm import tqdm
 
     from ros2_mos.cli.core_commands import load_config
-    from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, sequence_dirs
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.pipeline import MosPipeline
+    from ros2_mos.io.semantic_kitti import SemanticKittiSequence, sequence_dirs
     from ros2_mos.scoring.calibration import threshold_curve
 
     pipeline = MosPipeline(load_config(params, model, sensor))
@@ -89,7 +89,7 @@ def calibrate(
     typer.echo(f"best threshold {best:.2f}: moving IoU {100 * best_iou:.1f} "
                f"({', '.join(s.name for s in seqs)}; model's own: {pipeline.threshold:.2f})")
     if write:
-        from ros2_mos.metadata import write_recommended_threshold
+        from ros2_mos.core.metadata import write_recommended_threshold
 
         path = pipeline.model.path
         write_recommended_threshold(path, best)

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ros2_mos.pointcloud2 import CloudView, fill_subset, fill_with_extra_fields
+from ros2_mos.io.pointcloud2 import CloudView, fill_subset, fill_with_extra_fields
 
 #: Names of the fields /mos/labels adds to the input's fields.
 LABEL_FIELD = "moving"
@@ -80,7 +80,7 @@ class MessageTypes:
     @classmethod
     def rosbags(cls) -> MessageTypes:
         """rosbags' Jazzy dataclasses, for writing bags."""
-        from ros2_mos.datasets.bags import msg_class
+        from ros2_mos.io.bags import msg_class
 
         def t(name: str) -> Any:
             return msg_class(name)

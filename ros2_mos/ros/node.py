@@ -23,8 +23,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ros2_mos.errors import ConfigError, ModelError, MosError, ScanError
-from ros2_mos.pointcloud2 import fill_xyzi
+from ros2_mos.core.errors import ConfigError, ModelError, MosError, ScanError
+from ros2_mos.io.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
 from ros2_mos.ros.dds import transport_summary, use_large_message_profile
 from ros2_mos.ros.diagnostics import DIAGNOSTIC_NAME, node_status
@@ -96,7 +96,7 @@ class MosNode(Node):
         return values
 
     def _setup(self) -> None:
-        from ros2_mos.pipeline import MosPipeline
+        from ros2_mos.core.pipeline import MosPipeline
 
         t0 = time.perf_counter()
         values = self._declare()
@@ -132,7 +132,7 @@ class MosNode(Node):
         self._diag_timer = self.create_timer(s.diagnostics_period, self._publish_diagnostics)
         self._log_timer = self.create_timer(s.log_period, self._log_stats) if s.log_period > 0 else None
         self._last_output: ScanOutput | None = None
-        self._sensor_mismatch = ""  # the last mismatch logged (ros2_mos.sensor_check)
+        self._sensor_mismatch = ""  # the last mismatch logged (ros2_mos.core.sensor_check)
         self._worker = threading.Thread(target=self._work, name="mos_worker", daemon=True)
         self._worker.start()
         p = pipeline

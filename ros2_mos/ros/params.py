@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ros2_mos.config import (
+from ros2_mos.core.config import (
     SENSOR_PRESETS,
     Knob,
     MosConfig,
@@ -29,7 +29,7 @@ from ros2_mos.config import (
     read_yaml_mapping,
     sensor_preset,
 )
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.errors import ConfigError
 from ros2_mos.ros.outputs import OUTPUT_KEYS, OUTPUTS
 
 NODE_NAME = "mos_node"
@@ -97,7 +97,7 @@ def _pipeline_params(prefix: str, cls: type, skip: tuple[str, ...] = (), describ
 _MOS_TOP = ("model", "threshold", "intra_op_threads", "geometry_backend", "device", "tune_malloc")
 
 PARAMS: tuple[ParamSpec, ...] = (
-    # --- pipeline (ros2_mos.config: the dataclasses define these)
+    # --- pipeline (ros2_mos.core.config: the dataclasses define these)
     *_pipeline_params("", MosConfig, skip=_MOS_TOP[1:]),
     _param("sensor.preset", "",
            "Sensor preset (" + ", ".join(SENSOR_PRESETS) + "), 'custom' for the sensor.* values, "
@@ -346,7 +346,7 @@ def params_file_text(node_name: str = NODE_NAME) -> str:
         "# Parameters of mos_node, at their defaults: `mos_node --ros-args --params-file config/mos.yaml`",
         "# (`ros2 run ros2_mos mos_node ...` on a ROS install). Every command that runs the pipeline reads the same",
         "# file with --params (`ros2-mos infer/process/map/odometry/suite/calibrate --params config/mos.yaml`).",
-        "# Generated from ros2_mos/config.py and ros2_mos/ros/params.py by `ros2-mos params > config/mos.yaml`.",
+        "# Generated from ros2_mos/core/config.py and ros2_mos/ros/params.py by `ros2-mos params > config/mos.yaml`.",
         f"{node_name}:",
         "  ros__parameters:",
     ]

@@ -5,7 +5,7 @@ here, so the live node and the offline bag processing cannot disagree. It also
 owns the input policy: which clouds are skipped (bad layout, too few finite
 points, a duplicate stamp, no plausible LiDAR scan) and when the scan buffer is reset (a gap in the
 stream; time going backwards and pose jumps are handled by the pipeline).
-Skips raise :class:`~ros2_mos.errors.ScanError` with the reason; the caller
+Skips raise :class:`~ros2_mos.core.errors.ScanError` with the reason; the caller
 logs it and carries on.
 """
 
@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from ros2_mos.errors import ImplausibleScanError, ScanError
-from ros2_mos.pipeline import MosPipeline, MosResult
-from ros2_mos.pointcloud2 import decode_xyz_intensity, view_cloud
+from ros2_mos.core.errors import ImplausibleScanError, ScanError
+from ros2_mos.core.pipeline import MosPipeline, MosResult
+from ros2_mos.io.pointcloud2 import decode_xyz_intensity, view_cloud
 from ros2_mos.ros import messages as m
 from ros2_mos.ros.outputs import ScanContext, build_messages
 from ros2_mos.ros.params import NodeSettings
@@ -123,7 +123,8 @@ class ScanProcessor:
         timings = {"decode": t_decode, **{k: v for k, v in result.timings.items() if k != "total"},
                    "encode": (time.perf_counter() - t1) * 1e3}
         timings["total"] = (time.perf_counter() - t0) * 1e3
-        return ScanOutput(stamp, frame_id, result, kept, points, messages, timings, notes, reset, withhold)
+        return ScanOutput(stamp_ns=stamp, frame_id=frame_id, result=result, valid_index=kept, points=points,
+                          messages=messages, timings=timings, notes=notes, reset=reset, labels_withheld=withhold)
 
     def _build(self, wanted: frozenset[str] | None, stamp: int, frame_id: str, view: Any, kept: np.ndarray,
                moving: np.ndarray, result: MosResult, withhold: bool) -> dict[str, Any]:

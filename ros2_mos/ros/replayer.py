@@ -18,7 +18,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ros2_mos.datasets.bags import iter_messages
+from ros2_mos.io.bags import iter_messages
 from ros2_mos.ros import messages as m
 
 

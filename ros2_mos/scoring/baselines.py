@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ros2_mos.segments import connected_regions, ground_mask, grow_regions
+from ros2_mos.core.segments import connected_regions, ground_mask, grow_regions
 
 
 def residual_threshold(newest_residual: np.ndarray, tau: float) -> np.ndarray:

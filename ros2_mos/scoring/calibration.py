@@ -13,12 +13,12 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
-from ros2_mos.errors import DatasetError
-from ros2_mos.labels import IGNORE, MOVING, to_moving_classes
-from ros2_mos.pipeline import MosPipeline
-from ros2_mos.postprocess import backproject
-from ros2_mos.projection import finite_mask, pixel_index
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.core.postprocess import backproject
+from ros2_mos.core.projection import finite_mask, pixel_index
+from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 
 BINS = 100
 

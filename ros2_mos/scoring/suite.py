@@ -28,19 +28,19 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
-from ros2_mos.errors import DatasetError
-from ros2_mos.labels import to_moving_classes
-from ros2_mos.metrics import MovingIoU
-from ros2_mos.pipeline import MosPipeline
-from ros2_mos.postprocess import backproject
-from ros2_mos.projection import finite_mask, project
-from ros2_mos.residuals import residual_images
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.core.postprocess import backproject
+from ros2_mos.core.projection import finite_mask, project
+from ros2_mos.core.residuals import residual_images
+from ros2_mos.io.labels import to_moving_classes
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 from ros2_mos.scoring.baselines import (
     RegionGrowingParams,
     region_growing,
     residual_threshold,
 )
+from ros2_mos.scoring.metrics import MovingIoU
 
 #: Held-out simulation seeds per preset (never used for training data).
 SIM_SEEDS: dict[str, tuple[int, ...]] = {

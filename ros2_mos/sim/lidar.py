@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ros2_mos.config import SensorConfig
+from ros2_mos.core.config import SensorConfig
 from ros2_mos.sim.objects import VEGETATION
 from ros2_mos.sim.presets import SensorEffects
 from ros2_mos.sim.raycast import SoupScene, cast_nearest

@@ -15,7 +15,7 @@ import numpy as np
 
 from ros2_mos.sim.geometry import boxes
 
-# SemanticKITTI ids (see ros2_mos.labels.SEMANTIC_NAMES).
+# SemanticKITTI ids (see ros2_mos.io.labels.SEMANTIC_NAMES).
 CAR, BUS, PERSON, BICYCLIST = 10, 13, 30, 31
 ROAD, SIDEWALK, BUILDING = 40, 48, 50
 VEGETATION, TRUNK, TERRAIN, POLE = 70, 71, 72, 80
@@ -55,8 +55,8 @@ def car_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     centers = np.array([[0.0, 0.0, 0.15], [0.0, 0.0, 0.675], [-0.15 * length, 0.0, 0.5 * (1.05 + cabin_top)]])
     tris = boxes(sizes, centers)
     paint = rng.uniform(0.05, 0.9)
-    rem = np.repeat([0.1, paint, 0.08], len(tris) // 3).astype(np.float32)  # tyres, paint, glass
-    return tris, rem
+    remission = np.repeat([0.1, paint, 0.08], len(tris) // 3).astype(np.float32)  # tyres, paint, glass
+    return tris, remission
 
 
 def bus_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -65,8 +65,8 @@ def bus_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     sizes = np.array([[length - 1.5, 2.3, 0.35], [length, 2.5, height - 0.35]])
     centers = np.array([[0.0, 0.0, 0.175], [0.0, 0.0, 0.35 + (height - 0.35) / 2]])
     tris = boxes(sizes, centers)
-    rem = np.repeat([0.1, rng.uniform(0.2, 0.8)], len(tris) // 2).astype(np.float32)
-    return tris, rem
+    remission = np.repeat([0.1, rng.uniform(0.2, 0.8)], len(tris) // 2).astype(np.float32)
+    return tris, remission
 
 
 def cyclist_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -74,8 +74,8 @@ def cyclist_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     sizes = np.array([[1.75, 0.12, 0.9], [0.55, 0.5, 0.7], [0.22, 0.2, 0.2]])
     centers = np.array([[0.0, 0.0, 0.5], [-0.15, 0.0, 1.3], [-0.05, 0.0, rng.uniform(1.7, 1.8)]])
     tris = boxes(sizes, centers)
-    rem = np.repeat([0.35, rng.uniform(0.1, 0.6), 0.3], len(tris) // 3).astype(np.float32)
-    return tris, rem
+    remission = np.repeat([0.35, rng.uniform(0.1, 0.6), 0.3], len(tris) // 3).astype(np.float32)
+    return tris, remission
 
 
 def pedestrian_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -84,8 +84,8 @@ def pedestrian_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     sizes = np.array([[0.25, 0.38, 0.48 * h], [0.3, 0.5, 0.37 * h], [0.22, 0.2, 0.15 * h]])
     centers = np.array([[0.0, 0.0, 0.24 * h], [0.0, 0.0, 0.665 * h], [0.0, 0.0, 0.925 * h]])
     tris = boxes(sizes, centers)
-    rem = np.repeat([rng.uniform(0.05, 0.5), rng.uniform(0.05, 0.6), 0.3], len(tris) // 3).astype(np.float32)
-    return tris, rem
+    remission = np.repeat([rng.uniform(0.05, 0.5), rng.uniform(0.05, 0.6), 0.3], len(tris) // 3).astype(np.float32)
+    return tris, remission
 
 
 SHAPES = {"car": car_shape, "bus": bus_shape, "cyclist": cyclist_shape, "pedestrian": pedestrian_shape}

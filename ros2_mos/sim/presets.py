@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.errors import ConfigError
 
 Range = tuple[float, float]
 

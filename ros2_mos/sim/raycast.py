@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.errors import ConfigError
 from ros2_mos.sim.geometry import TriangleSoup
 
 

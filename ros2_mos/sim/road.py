@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.errors import ConfigError
 from ros2_mos.sim.presets import StreetConfig
 
 # Headings of the four grid directions (east, north, west, south) as (dx, dy) index steps.

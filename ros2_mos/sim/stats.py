@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ros2_mos.labels import MOVING_IDS
+from ros2_mos.io.labels import MOVING_IDS
 from ros2_mos.sim.lidar import LidarScan
 from ros2_mos.sim.traffic import Agent
 

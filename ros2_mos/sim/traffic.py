@@ -160,8 +160,8 @@ class _TrafficBuilder:
         """Accept the candidate if it is ever in range and overlaps nobody; gives it an instance id."""
         if not self.visible(x, y):
             return False
-        tris, rem = ob.SHAPES[kind.name](self.rng)
-        agent = Agent(kind, self.next_instance, tris, rem, x, y, yaw, role)
+        tris, remission = ob.SHAPES[kind.name](self.rng)
+        agent = Agent(kind, self.next_instance, tris, remission, x, y, yaw, role)
         if check_collisions and self.collides(agent):
             return False
         self.next_instance += 1

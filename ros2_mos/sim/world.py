@@ -14,8 +14,8 @@ from typing import Iterator
 
 import numpy as np
 
-from ros2_mos.config import SensorConfig, sensor_preset
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.config import SensorConfig, sensor_preset
+from ros2_mos.core.errors import ConfigError
 from ros2_mos.sim.lidar import Lidar, LidarScan
 from ros2_mos.sim.presets import SimPreset, sim_preset
 from ros2_mos.sim.raycast import SoupScene

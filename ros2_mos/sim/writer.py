@@ -2,7 +2,7 @@
 
 ``OUT/sequences/XX/{velodyne,labels}/NNNNNN.{bin,label}``, ``poses.txt`` (camera
 poses through KITTI's ``Tr``, as the real dataset), ``calib.txt`` and
-``times.txt``, all through :mod:`ros2_mos.datasets.semantic_kitti`, so that the
+``times.txt``, all through :mod:`ros2_mos.io.semantic_kitti`, so that the
 project's own reader (and any SemanticKITTI tool) reads them back unchanged.
 """
 
@@ -14,8 +14,9 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ros2_mos.config import SensorConfig
-from ros2_mos.datasets.semantic_kitti import (
+from ros2_mos.core.config import SensorConfig
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.semantic_kitti import (
     SemanticKittiSequence,
     write_calib,
     write_label,
@@ -23,7 +24,6 @@ from ros2_mos.datasets.semantic_kitti import (
     write_scan,
     write_times,
 )
-from ros2_mos.errors import DatasetError
 from ros2_mos.sim.presets import SimPreset
 from ros2_mos.sim.stats import SequenceStats
 from ros2_mos.sim.world import SequenceSimulator
@@ -94,6 +94,6 @@ def iter_sequence_scans(
 def write_sequence_bag(seq_dir: str | Path, bag_path: str | Path, topic: str = "/points",
                        frame_id: str = "velodyne", storage: str = "mcap") -> int:
     """Write a simulated (or any SemanticKITTI) sequence as a rosbag2 bag of PointCloud2; returns the message count."""
-    from ros2_mos.datasets.bags import write_scans_bag
+    from ros2_mos.io.bags import write_scans_bag
 
     return write_scans_bag(bag_path, iter_sequence_scans(seq_dir), topic=topic, frame_id=frame_id, storage=storage)

@@ -1,8 +1,8 @@
 """The paper's ablation on held-out sequences: baselines, input setups and networks, as one table.
 
 Every row is scored the way the MOS benchmark scores a submission: per *point*
-moving IoU (:class:`~ros2_mos.metrics.MovingIoU`, counts accumulated over all test
-scans) after the node's own kNN back-projection (:func:`~ros2_mos.postprocess.backproject`),
+moving IoU (:class:`~ros2_mos.scoring.metrics.MovingIoU`, counts accumulated over all test
+scans) after the node's own kNN back-projection (:func:`~ros2_mos.core.postprocess.backproject`),
 on test sequences no model or threshold was fitted on.  CNN rows are trained by
 :class:`~ros2_mos.training.trainer.Trainer` from one base config with only the input
 setup / network changed (and resumed if their run folder already holds the run);
@@ -21,13 +21,13 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from ros2_mos.config import PostprocessConfig
-from ros2_mos.datasets.semantic_kitti import sequence_dirs
-from ros2_mos.errors import ConfigError
-from ros2_mos.features import IMAGE_CHANNELS, InputSetup
-from ros2_mos.metrics import MovingIoU
-from ros2_mos.postprocess import backproject
-from ros2_mos.projection import PixelIndex
+from ros2_mos.core.config import PostprocessConfig
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.network_input import IMAGE_CHANNELS, InputSetup
+from ros2_mos.core.postprocess import backproject
+from ros2_mos.core.projection import PixelIndex
+from ros2_mos.io.semantic_kitti import sequence_dirs
+from ros2_mos.scoring.metrics import MovingIoU
 from ros2_mos.training.baselines import tune_region_growing, tune_residual_threshold
 from ros2_mos.training.dataset import MosDataset, SequenceCache, build_caches
 from ros2_mos.training.trainer import TrainConfig, Trainer, load_checkpoint, model_from_checkpoint

@@ -13,12 +13,12 @@ from typing import Sequence
 
 import numpy as np
 
+from ros2_mos.core.segments import connected_regions, ground_mask
 from ros2_mos.scoring.baselines import (
     free_space_seeds,
     grow_regions,
     residual_threshold,
 )
-from ros2_mos.segments import connected_regions, ground_mask
 from ros2_mos.training.dataset import SequenceCache
 
 __all__ = ["ResidualThreshold", "ResidualRegionGrowing", "connected_regions", "ground_mask",

@@ -4,8 +4,8 @@ Cache
 -----
 Computing N = 8 residual images costs ~8 re-projections per scan; doing that every
 epoch would dominate training on a CPU.  So each sequence is processed once, with
-exactly the functions the node runs (:func:`~ros2_mos.projection.project`,
-:func:`~ros2_mos.residuals.residual_images`, and for the ``frames`` setups
+exactly the functions the node runs (:func:`~ros2_mos.core.projection.project`,
+:func:`~ros2_mos.core.residuals.residual_images`, and for the ``frames`` setups
 ``project(transform_points(past))``), and these *components* are stored as
 ``.npy`` memory maps under ``<cache_root>/<sequence>-<key>/``:
 
@@ -31,7 +31,7 @@ perturbed by a random translation and rotation of those standard deviations (one
 draw per scan pair, seeded by the pair), so the network learns that small
 misregistration is not motion.
 The network input is then assembled at load time by the core's
-:func:`~ros2_mos.features.assemble_input` (normalisation with the model's means/stds).
+:func:`~ros2_mos.core.network_input.assemble_input` (normalisation with the model's means/stds).
 
 Augmentation in image space (why it is equivalent to augmenting the points)
 ---------------------------------------------------------------------------
@@ -69,13 +69,13 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ros2_mos.config import ResidualConfig, SensorConfig
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
-from ros2_mos.errors import ConfigError, DatasetError
-from ros2_mos.features import InputSetup, assemble_input
-from ros2_mos.labels import IGNORE, to_moving_classes
-from ros2_mos.projection import PixelIndex, RangeImage, finite_mask, project, project_range_columns
-from ros2_mos.residuals import relative_pose, residual_image, transform_columns, transform_points
+from ros2_mos.core.config import ResidualConfig, SensorConfig
+from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.core.network_input import InputSetup, assemble_input
+from ros2_mos.core.projection import PixelIndex, RangeImage, finite_mask, project, project_range_columns
+from ros2_mos.core.residuals import relative_pose, residual_image, transform_columns, transform_points
+from ros2_mos.io.labels import IGNORE, to_moving_classes
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 
 CACHE_VERSION = 3
 _EMPTY_PIXELS = PixelIndex(
@@ -156,9 +156,10 @@ def _read(sequence: SemanticKittiSequence, index: int, poses: np.ndarray) -> _Sc
     """A frame with the pipeline's input cleaning (finite, non-zero points only)."""
     frame = sequence[index]
     valid = finite_mask(frame.points)
-    rem = np.nan_to_num(frame.remission[valid], nan=0.0, posinf=0.0, neginf=0.0)
+    remission = np.nan_to_num(frame.remission[valid], nan=0.0, posinf=0.0, neginf=0.0)
     labels = None if frame.labels is None else frame.labels[valid]
-    return _Scan(np.ascontiguousarray(frame.points[valid], np.float32), rem.astype(np.float32), labels, poses[index])
+    return _Scan(np.ascontiguousarray(frame.points[valid], np.float32), remission.astype(np.float32), labels,
+                 poses[index])
 
 
 def _raw_frame(image: RangeImage) -> np.ndarray:
@@ -232,8 +233,8 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
 def _sequence_poses(sequence: SemanticKittiSequence, source: str, sensor: SensorConfig) -> np.ndarray:
     if source == "dataset":
         return sequence.require_poses("training with 'poses: dataset' (else use poses: kiss_icp)")
-    from ros2_mos.config import OdometryConfig
-    from ros2_mos.odometry import KissIcpOdometry
+    from ros2_mos.core.config import OdometryConfig
+    from ros2_mos.core.odometry import KissIcpOdometry
 
     odometry = KissIcpOdometry(OdometryConfig(max_range=min(100.0, sensor.max_range)))
     poses = []
@@ -384,7 +385,7 @@ class MosDataset(Dataset):
         self.epoch = epoch
 
     def components(self, item: int, columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Raw (current 5xHxW, extra (n, H, W) residuals or (5n, H, W) frames, label) of a sample.
+        """Raw (current 5xHxW, past_channels (n, H, W) residuals or (5n, H, W) frames, label) of a sample.
 
         ``columns`` gathers only those image columns (in that order), as a crop would.
         """
@@ -398,23 +399,24 @@ class MosDataset(Dataset):
         n = self.setup.n_past
         if self.setup.kind == "residual":
             channels = [o - 1 for o in self.setup.offsets]
-            extra = (
+            past_channels = (
                 read(cache.residual[i, channels], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
             )
         else:
-            extra = read(cache.past[i, : 5 * n], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
-        return current, extra, read(cache.label[i], np.int64)
+            past_channels = (read(cache.past[i, : 5 * n], np.float32) if n
+                             else np.zeros((0,) + current.shape[1:], np.float32))
+        return current, past_channels, read(cache.label[i], np.int64)
 
     def __getitem__(self, item: int) -> tuple[torch.Tensor, torch.Tensor]:
         if self.augment is not None:
             rng = np.random.default_rng((self.seed, self.epoch, item))
-            current, extra, label = self._augmented(item, rng)
+            current, past_channels, label = self._augmented(item, rng)
         else:
-            current, extra, label = self.components(item)
+            current, past_channels, label = self.components(item)
         if self.setup.kind == "residual":
-            x = assemble_input(as_range_image(current), extra, self.setup, self.means, self.stds)
+            x = assemble_input(as_range_image(current), past_channels, self.setup, self.means, self.stds)
         else:
-            frames = [as_range_image(extra[5 * j : 5 * (j + 1)]) for j in range(len(extra) // 5)]
+            frames = [as_range_image(past_channels[5 * j : 5 * (j + 1)]) for j in range(len(past_channels) // 5)]
             x = assemble_input(as_range_image(current), frames, self.setup, self.means, self.stds)
         return torch.from_numpy(x), torch.from_numpy(label)
 
@@ -436,50 +438,50 @@ class MosDataset(Dataset):
         columns = (k + np.arange(width)) % w
         if flip:
             columns = w - 1 - columns
-        current, extra, label = self.components(item, columns)
+        current, past_channels, label = self.components(item, columns)
         if flip:
             current[2] *= -1.0
             if frames_kind:
-                extra[2::5] *= -1.0
+                past_channels[2::5] *= -1.0
         if k:
             theta = 2.0 * np.pi * k / w
             cos, sin = float(np.cos(theta)), float(np.sin(theta))
             _rotate_xy(current, cos, sin)
             if frames_kind:
-                _rotate_xy(extra, cos, sin)
+                _rotate_xy(past_channels, cos, sin)
         if aug.drop_max > 0:
             fraction = rng.random() * aug.drop_max
             drop = rng.random(label.shape) < fraction
             current[:, drop] = 0.0
             if not frames_kind:
-                extra[:, drop] = 0.0
+                past_channels[:, drop] = 0.0
             label[drop] = IGNORE
-        return current, extra, label
+        return current, past_channels, label
 
 
 def flip_y(
-    current: np.ndarray, extra: np.ndarray, label: np.ndarray, frames_kind: bool
+    current: np.ndarray, past_channels: np.ndarray, label: np.ndarray, frames_kind: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The image-space form of mirroring the points y -> -y: reverse the columns, negate y."""
-    current, extra, label = current[..., ::-1].copy(), extra[..., ::-1].copy(), label[..., ::-1].copy()
+    current, past_channels, label = current[..., ::-1].copy(), past_channels[..., ::-1].copy(), label[..., ::-1].copy()
     current[2] *= -1.0
     if frames_kind:
-        extra[2::5] *= -1.0
-    return current, extra, label
+        past_channels[2::5] *= -1.0
+    return current, past_channels, label
 
 
 def rotate_columns(
-    current: np.ndarray, extra: np.ndarray, label: np.ndarray, k: int, frames_kind: bool
+    current: np.ndarray, past_channels: np.ndarray, label: np.ndarray, k: int, frames_kind: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The image-space form of rotating the points by 2πk/W about z: roll by -k columns, rotate x, y."""
     w = current.shape[-1]
     theta = 2.0 * np.pi * k / w
-    current, extra, label = (np.roll(a, -k, axis=-1) for a in (current, extra, label))
+    current, past_channels, label = (np.roll(a, -k, axis=-1) for a in (current, past_channels, label))
     cos, sin = float(np.cos(theta)), float(np.sin(theta))
     _rotate_xy(current, cos, sin)
     if frames_kind:
-        _rotate_xy(extra, cos, sin)
-    return current, extra, label
+        _rotate_xy(past_channels, cos, sin)
+    return current, past_channels, label
 
 
 def build_caches(

@@ -5,9 +5,9 @@ output ``"probability"`` (1, n_classes, H, W) with channel 1 = moving.  For two 
 the softmax is written as ``p_moving = sigmoid(l_1 - l_0)``, ``p_static = 1 - p_moving``
 (the same function): ONNX Runtime's CPU Softmax over the channel axis of an NCHW
 tensor transposes it and took 5 of the shipped model's 28 ms per scan.  The model's
-:class:`~ros2_mos.metadata.ModelMetadata` (setup, sensor, normalisation, network,
+:class:`~ros2_mos.core.metadata.ModelMetadata` (setup, sensor, normalisation, network,
 training data, valid IoU) is stored as JSON in the ONNX ``metadata_props`` under
-:data:`~ros2_mos.metadata.METADATA_KEY`, so a model file is self-describing.
+:data:`~ros2_mos.core.metadata.METADATA_KEY`, so a model file is self-describing.
 
 Every export is checked: ONNX Runtime must reproduce the PyTorch output on a random
 input, otherwise the file is deleted and :class:`ModelError` raised — a silently
@@ -26,11 +26,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from ros2_mos.errors import ModelError
+from ros2_mos.core.errors import ModelError
 
 # The tensor names are the contract with the runtime: one definition, in the runtime.
-from ros2_mos.inference import INPUT_NAME, OUTPUT_NAME  # noqa: E402
-from ros2_mos.metadata import METADATA_KEY, ModelMetadata, save_model_atomically
+from ros2_mos.core.inference import INPUT_NAME, OUTPUT_NAME  # noqa: E402
+from ros2_mos.core.metadata import METADATA_KEY, ModelMetadata, save_model_atomically
 
 DEFAULT_OPSET = 17
 
@@ -157,6 +157,6 @@ def _check_with_onnxruntime(path: Path, example: np.ndarray, reference: np.ndarr
 
 def read_metadata(path: str | Path) -> ModelMetadata:
     """The ModelMetadata stored in an exported model: the runtime's own reader, re-exported for training tools."""
-    from ros2_mos.inference import read_metadata as runtime_read_metadata
+    from ros2_mos.core.inference import read_metadata as runtime_read_metadata
 
     return runtime_read_metadata(path)

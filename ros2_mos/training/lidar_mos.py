@@ -42,10 +42,10 @@ from typing import Any, Mapping
 import torch
 from torch import nn
 
-from ros2_mos.config import SENSOR_PRESETS, SensorConfig
-from ros2_mos.errors import ModelError
-from ros2_mos.features import InputSetup
-from ros2_mos.metadata import ModelMetadata
+from ros2_mos.core.config import SENSOR_PRESETS, SensorConfig
+from ros2_mos.core.errors import ModelError
+from ros2_mos.core.metadata import ModelMetadata
+from ros2_mos.core.network_input import InputSetup
 
 SALSANEXT_FILE = "SalsaNext_valid_best"
 RANGENET_FILES = ("backbone", "segmentation_decoder", "segmentation_head")

@@ -16,8 +16,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ros2_mos.errors import ConfigError
-from ros2_mos.labels import IGNORE
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.io.labels import IGNORE
 
 
 def inverse_frequency_weights(

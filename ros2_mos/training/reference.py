@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ros2_mos.config import SensorConfig
+from ros2_mos.core.config import SensorConfig
 
 
 def range_projection(vertex: np.ndarray, sensor: SensorConfig, max_range: float) -> np.ndarray:

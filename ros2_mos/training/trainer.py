@@ -27,12 +27,12 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from ros2_mos.config import ResidualConfig, SensorConfig, read_yaml_mapping, sensor_preset
-from ros2_mos.datasets.semantic_kitti import sequence_dirs
-from ros2_mos.errors import ConfigError, DatasetError
-from ros2_mos.features import InputSetup
-from ros2_mos.metadata import ModelMetadata
-from ros2_mos.metrics import MovingIoU
+from ros2_mos.core.config import ResidualConfig, SensorConfig, read_yaml_mapping, sensor_preset
+from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.core.metadata import ModelMetadata
+from ros2_mos.core.network_input import InputSetup
+from ros2_mos.io.semantic_kitti import sequence_dirs
+from ros2_mos.scoring.metrics import MovingIoU
 from ros2_mos.training.dataset import (
     AugmentConfig,
     CacheSpec,
@@ -332,7 +332,7 @@ class Trainer:
             return tuple(self._init_state["means"]), tuple(self._init_state["stds"])
         if self.config.fit_statistics:
             return channel_statistics(self.train_caches)
-        from ros2_mos.features import DEFAULT_MEANS, DEFAULT_STDS
+        from ros2_mos.core.network_input import DEFAULT_MEANS, DEFAULT_STDS
 
         return DEFAULT_MEANS, DEFAULT_STDS
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import pytest
 
-from ros2_mos.config import MosConfig, sensor_preset
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence
-from ros2_mos.evaluation import predict_sequence
-from ros2_mos.inference import shipped_models
-from ros2_mos.metrics import MovingIoU
+from ros2_mos.core.config import MosConfig, sensor_preset
+from ros2_mos.core.inference import shipped_models
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+from ros2_mos.scoring.evaluation import predict_sequence
+from ros2_mos.scoring.metrics import MovingIoU
 
 SENSORS = sorted(s for s in shipped_models() if s != "hdl64")
 #: A smoke bound for 12 scans of a held-out drive (the suite's figures per sensor are in README, Sensors).
@@ -18,7 +18,7 @@ MIN_IOU = 0.3
 
 @pytest.mark.parametrize("sensor", SENSORS)
 def test_each_sensor_labels_its_own_drive_and_flags_another(sensor, tmp_path):
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.pipeline import MosPipeline
     from ros2_mos.sim import sequence_dir, simulate_sequence
 
     simulate_sequence(tmp_path, "drive", 12, "traffic_jam", seed=5151, sensor=sensor)

@@ -10,10 +10,10 @@ from conftest import make_threshold_model
 from typer.testing import CliRunner
 
 from ros2_mos.cli import app
-from ros2_mos.config import MosConfig, sensor_preset
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_label
-from ros2_mos.evaluation import predict_sequence
-from ros2_mos.pipeline import MosPipeline
+from ros2_mos.core.config import MosConfig, sensor_preset
+from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label
+from ros2_mos.scoring.evaluation import predict_sequence
 
 runner = CliRunner()
 N_SCANS = 25
@@ -67,7 +67,7 @@ def test_eval_says_when_it_covers_only_part_of_the_ground_truth(dataset, tmp_pat
     ground-truth label file is named as the ground truth's fault, not the prediction's."""
     import shutil
 
-    from ros2_mos.datasets.semantic_kitti import write_label
+    from ros2_mos.io.semantic_kitti import write_label
 
     gt = tmp_path / "gt"
     for name in ("00", "01"):

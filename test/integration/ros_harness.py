@@ -21,7 +21,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from scenes import street_sequence  # noqa: E402  (test/ is on sys.path: see test/conftest.py)
 
-from ros2_mos.pointcloud2 import fill_xyzi
+from ros2_mos.io.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
 
 TYPES = m.MessageTypes.rclpy()

@@ -27,8 +27,8 @@ from ros_harness import (  # noqa: E402
     sequence_fixture,
 )
 
-from ros2_mos.errors import ScanError  # noqa: E402
-from ros2_mos.pointcloud2 import FLOAT32, INT16, MAX_FIELDS, MAX_POINT_STEP, decode_xyz_intensity  # noqa: E402
+from ros2_mos.core.errors import ScanError  # noqa: E402
+from ros2_mos.io.pointcloud2 import FLOAT32, INT16, MAX_FIELDS, MAX_POINT_STEP, decode_xyz_intensity  # noqa: E402
 from ros2_mos.ros import messages as m  # noqa: E402
 from ros2_mos.ros.diagnostics import STALE_AFTER_S  # noqa: E402
 
@@ -207,7 +207,7 @@ def test_scattered_points_are_skipped_and_a_slow_registration_keeps_the_diagnost
     """
     import time
 
-    import ros2_mos.pipeline as pipeline_module
+    import ros2_mos.core.pipeline as pipeline_module
 
     harness.node.processor.reset()
     stamp = BASE_STAMP + 25 * 10**12

@@ -27,9 +27,9 @@ from ros_harness import (  # noqa: E402
     sequence_fixture,
 )
 
-from ros2_mos.config import MosConfig  # noqa: E402
-from ros2_mos.pipeline import MosPipeline  # noqa: E402
-from ros2_mos.pointcloud2 import decode_xyz_intensity, view_cloud  # noqa: E402
+from ros2_mos.core.config import MosConfig  # noqa: E402
+from ros2_mos.core.pipeline import MosPipeline  # noqa: E402
+from ros2_mos.io.pointcloud2 import decode_xyz_intensity, view_cloud  # noqa: E402
 from ros2_mos.ros import messages as m  # noqa: E402
 
 DOMAIN = 40 + os.getpid() % 150
@@ -268,7 +268,7 @@ def test_bad_parameter_is_rejected_at_start_up(tiny_model_path):
 
 def test_node_process_replay_and_listener(tmp_path, tiny_model_path, sequence):
     """mos_node | ros2-mos replay | a listener here: /mos/static_points arrives for every scan."""
-    from ros2_mos.datasets.bags import write_scans_bag
+    from ros2_mos.io.bags import write_scans_bag
 
     domain = DOMAIN + 2
     bag = tmp_path / "bag"
@@ -395,7 +395,7 @@ def test_ready_line_shows_remapped_topics_and_a_namesake_is_reported(tiny_model_
 
 def test_node_and_commands_read_a_params_file_alike(tmp_path, tiny_model_path):
     """``1e4`` is a float for both (ROS reads YAML 1.2 numbers); a file for another node is refused by both."""
-    from ros2_mos.errors import ConfigError
+    from ros2_mos.core.errors import ConfigError
     from ros2_mos.ros.params import load_params_file, mos_config
 
     exponent = tmp_path / "exponent.yaml"

@@ -15,9 +15,9 @@ from ros_harness import BASE_STAMP, TYPES, cloud, running_harness  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
 from ros2_mos.apps.mapping import VoxelMap, VoxelMapConfig  # noqa: E402
-from ros2_mos.config import MosConfig  # noqa: E402
-from ros2_mos.pipeline import MosPipeline  # noqa: E402
-from ros2_mos.pointcloud2 import decode_xyz_intensity  # noqa: E402
+from ros2_mos.core.config import MosConfig  # noqa: E402
+from ros2_mos.core.pipeline import MosPipeline  # noqa: E402
+from ros2_mos.io.pointcloud2 import decode_xyz_intensity  # noqa: E402
 from ros2_mos.ros import messages as m  # noqa: E402
 
 DOMAIN = 20 + os.getpid() % 150

@@ -18,7 +18,7 @@ import numpy as np
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from ros2_mos.pointcloud2 import fill_xyzi
+from ros2_mos.io.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
 
 TYPES = m.MessageTypes.rclpy()

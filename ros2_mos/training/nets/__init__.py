@@ -11,7 +11,7 @@ from typing import Any
 
 from torch import nn
 
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.errors import ConfigError
 
 # name -> (module under ros2_mos.training.nets, class name); imported lazily so that
 # building a small network does not import every architecture.

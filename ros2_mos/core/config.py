@@ -15,7 +15,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.errors import ConfigError
 
 #: Ranges above this are no LiDAR's (and break KISS-ICP's voxel hashing: inf or 1e300 aborts it).
 MAX_RANGE_LIMIT = 1000.0
@@ -237,14 +237,14 @@ class PostprocessConfig:
     window: int = knob(5, "kNN: odd search window size (pixels)", min=1, max=15)
     sigma: float = knob(1.0, "kNN: Gaussian weight of the window", min=0.0, above=True)
     cutoff: float = knob(1.0, "kNN: neighbours farther than this in range do not vote (m)", min=0.0, above=True)
-    # ros2_mos.segments.fill_segments
+    # ros2_mos.core.segments.fill_segments
     segment_fill: float = knob(0.0, "a connected non-ground range-image segment at least this share moving is "
                                     "labelled moving whole; 0 = off", min=0.0, max=1.0)
-    # ros2_mos.segments.drop_small_regions: speckle on foliage and depth edges
+    # ros2_mos.core.segments.drop_small_regions: speckle on foliage and depth edges
     min_region_pixels: int = knob(30, "connected moving range-image regions smaller than this (pixels of a "
                                       "64 x 2048 image, scaled for others) are labelled static; 0 = off",
                                   min=0, max=10000)
-    # ros2_mos.temporal.BeliefFilter
+    # ros2_mos.core.temporal.BeliefFilter
     temporal_weight: float = knob(0.5, "temporal fusion: share of the last scan's moving belief (log-odds) at the "
                                        "same surface carried into this scan's; 0 = off", min=0.0, max=1.0)
 
@@ -305,7 +305,7 @@ class MosConfig:
     geometry_backend: str = knob("numpy", "residual images and kNN in numpy, or in torch (GPU path; needs torch "
                                           "installed)", choices=("numpy", "torch"))
     device: str = knob("auto", "torch device of the torch geometry backend: auto (CUDA when present), cpu, cuda")
-    # ros2_mos.memory (its cost: benchmarks/bench.md).
+    # ros2_mos.core.memory (its cost: benchmarks/bench.md).
     tune_malloc: bool = knob(True, "keep freed heap memory mapped (glibc mallopt, whole process): saves page "
                                    "faults per scan")
 

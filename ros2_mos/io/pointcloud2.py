@@ -9,7 +9,7 @@ dtype built from the message's fields (honouring ``is_bigendian``,
 ``point_step`` and ``row_step``), never a Python loop over points.
 
 Messages come off the wire from other programs, so nothing here trusts them:
-every inconsistency raises a :class:`~ros2_mos.errors.ScanError` subclass with a
+every inconsistency raises a :class:`~ros2_mos.core.errors.ScanError` subclass with a
 message that says what was wrong, and nothing allocates based on a size the
 message merely claims.
 """
@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ros2_mos.errors import ScanError
+from ros2_mos.core.errors import ScanError
 
 # sensor_msgs/msg/PointField datatype constants (Jazzy defines 1..8).
 INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)

@@ -21,7 +21,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ros2_mos.errors import DatasetError
+from ros2_mos.core.errors import DatasetError
 
 KITTI_TR = np.array(
     [

@@ -15,19 +15,19 @@ from typing import Any
 
 import numpy as np
 
-from ros2_mos.config import MosConfig, PostprocessConfig, ResidualConfig, SensorConfig
-from ros2_mos.errors import ConfigError, ImplausibleScanError, ScanError
-from ros2_mos.features import assemble_input
-from ros2_mos.inference import MosModel, default_model_path, shipped_models
-from ros2_mos.memory import retain_freed_memory
-from ros2_mos.metadata import check_threshold
-from ros2_mos.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
-from ros2_mos.postprocess import backproject
-from ros2_mos.projection import PixelIndex, RangeImage, check_points, finite_mask, project
-from ros2_mos.residuals import relative_pose, residual_images, transform_points
-from ros2_mos.segments import drop_small_regions, fill_segments
-from ros2_mos.sensor_check import implausible_message, mismatch_message
-from ros2_mos.temporal import BeliefFilter
+from ros2_mos.core.config import MosConfig, PostprocessConfig, ResidualConfig, SensorConfig
+from ros2_mos.core.errors import ConfigError, ImplausibleScanError, ScanError
+from ros2_mos.core.inference import MosModel, default_model_path, shipped_models
+from ros2_mos.core.memory import retain_freed_memory
+from ros2_mos.core.metadata import check_threshold
+from ros2_mos.core.network_input import assemble_input
+from ros2_mos.core.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
+from ros2_mos.core.postprocess import backproject
+from ros2_mos.core.projection import PixelIndex, RangeImage, check_points, finite_mask, project
+from ros2_mos.core.residuals import relative_pose, residual_images, transform_points
+from ros2_mos.core.segments import drop_small_regions, fill_segments
+from ros2_mos.core.sensor_check import implausible_message, mismatch_message
+from ros2_mos.core.temporal import BeliefFilter
 
 #: Above this share of points outside the sensor's vertical field of view or range limits, the
 #: cloud does not fit the configured sensor (another beam layout): its labels are flagged degraded.
@@ -55,7 +55,7 @@ class MosResult:
     timings: dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
     warnings: list[str] = field(default_factory=list)
     # Non-empty when the stream's first scan (since start or reset) did not fit the configured sensor
-    # (ros2_mos.sensor_check): every label of the stream is then suspect.
+    # (ros2_mos.core.sensor_check): every label of the stream is then suspect.
     sensor_mismatch: str = ""
     # True when this scan reset the scan buffer (time went backwards, odometry failed or jumped).
     reset: bool = False
@@ -91,7 +91,7 @@ class _Stopwatch:
 class NumpyGeometry:
     """The default geometry backend: residual images and the kNN vote in numpy.
 
-    :class:`ros2_mos.torch_ops.TorchGeometry` has the same methods (``geometry_backend: torch``); the
+    :class:`ros2_mos.core.torch_geometry.TorchGeometry` has the same methods (``geometry_backend: torch``); the
     pipeline picks one in ``__init__``. Past scans are re-projected on two threads (numpy releases the
     GIL in its ufuncs).
     """
@@ -197,7 +197,7 @@ class MosPipeline:
         self.belief = BeliefFilter(self.sensor, config.postprocess.temporal_weight)
         self.geometry: Any = NumpyGeometry(self.sensor, parallel=self.n_past > 1)
         if config.geometry_backend == "torch":
-            from ros2_mos.torch_ops import TorchGeometry  # the only place the runtime may import torch
+            from ros2_mos.core.torch_geometry import TorchGeometry  # the only place the runtime may import torch
 
             self.geometry = TorchGeometry(self.sensor, config.device)
         self._last_stamp: float | None = None
@@ -232,7 +232,7 @@ class MosPipeline:
 
         Non-finite and zero-range points are left out and marked invalid; a scan with no
         usable point, or of the wrong shape, raises :class:`ScanError`; a cloud whose range image
-        is no scan of surfaces (:func:`~ros2_mos.sensor_check.implausible_message`) raises
+        is no scan of surfaces (:func:`~ros2_mos.core.sensor_check.implausible_message`) raises
         :class:`ImplausibleScanError` before the odometry sees it, and leaves the pipeline as it was.
         """
         watch = _Stopwatch()

@@ -8,22 +8,22 @@ torch = pytest.importorskip("torch")
 from conftest import TEST_SENSOR  # noqa: E402
 from scenes import street_sequence  # noqa: E402
 
-from ros2_mos import torch_ops  # noqa: E402
-from ros2_mos.config import PostprocessConfig, ResidualConfig  # noqa: E402
-from ros2_mos.postprocess import knn_backproject  # noqa: E402
-from ros2_mos.projection import project, project_range  # noqa: E402
-from ros2_mos.residuals import residual_images  # noqa: E402
+from ros2_mos.core import torch_geometry  # noqa: E402
+from ros2_mos.core.config import PostprocessConfig, ResidualConfig  # noqa: E402
+from ros2_mos.core.postprocess import knn_backproject  # noqa: E402
+from ros2_mos.core.projection import project, project_range  # noqa: E402
+from ros2_mos.core.residuals import residual_images  # noqa: E402
 
 
 def test_range_image_and_residuals_match_numpy():
     seq = street_sequence(3)
     (p0, _, _, pose0), (p1, _, _, pose1), (p2, _, _, pose2) = seq
     cur = torch.from_numpy(p2)
-    np.testing.assert_allclose(torch_ops.range_image(cur, TEST_SENSOR).numpy(), project_range(p2, TEST_SENSOR),
+    np.testing.assert_allclose(torch_geometry.range_image(cur, TEST_SENSOR).numpy(), project_range(p2, TEST_SENSOR),
                                atol=1e-4)
     ref = residual_images(project_range(p2, TEST_SENSOR), pose2, [(p1, pose1), (p0, pose0)], 2, TEST_SENSOR,
                           ResidualConfig())
-    got = torch_ops.residual_images(torch_ops.range_image(cur, TEST_SENSOR), pose2,
+    got = torch_geometry.residual_images(torch_geometry.range_image(cur, TEST_SENSOR), pose2,
                                     [(torch.from_numpy(p1), pose1), (torch.from_numpy(p0), pose0)], 2, TEST_SENSOR,
                                     ResidualConfig()).numpy()
     assert ref.any()
@@ -38,7 +38,8 @@ def test_signed_residuals_at_offsets_match_numpy():
     pts, _, _, pose = seq[3]
     current = project_range(pts, TEST_SENSOR)
     ref = residual_images(current, pose, past, 2, TEST_SENSOR, ResidualConfig(), offsets=(1, 3), signed=True)
-    got = torch_ops.TorchGeometry(TEST_SENSOR, "cpu").residuals(current, pose, past, 2, ResidualConfig(), (1, 3), True)
+    geometry = torch_geometry.TorchGeometry(TEST_SENSOR, "cpu")
+    got = geometry.residuals(current, pose, past, 2, ResidualConfig(), (1, 3), True)
     assert (ref < 0).any() and (ref > 0).any()
     assert np.isclose(got, ref, atol=1e-3).mean() > 0.995
 
@@ -51,13 +52,14 @@ def test_knn_matches_numpy():
     prob[8:20, 100:160] = rng.uniform(0, 1, (12, 60))
     cfg = PostprocessConfig()
     ref = knn_backproject(prob, image.range, image.pixels, cfg)
-    got = torch_ops.knn_backproject(torch.from_numpy(prob), torch.from_numpy(image.range), image.pixels, cfg).numpy()
+    got = torch_geometry.knn_backproject(torch.from_numpy(prob), torch.from_numpy(image.range), image.pixels,
+                                         cfg).numpy()
     np.testing.assert_allclose(got, ref, atol=1e-5)
 
 
 def test_pipeline_with_the_torch_backend_gives_the_numpy_labels(tiny_model_path):
-    from ros2_mos.config import MosConfig
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.config import MosConfig
+    from ros2_mos.core.pipeline import MosPipeline
 
     pipes = [MosPipeline(MosConfig(model=str(tiny_model_path), geometry_backend=b, device="cpu"))
              for b in ("numpy", "torch")]
@@ -69,9 +71,9 @@ def test_pipeline_with_the_torch_backend_gives_the_numpy_labels(tiny_model_path)
 
 
 def test_devices_this_torch_cannot_use_are_config_errors():
-    from ros2_mos.config import MosConfig
-    from ros2_mos.errors import ConfigError
-    from ros2_mos.torch_ops import pick_device
+    from ros2_mos.core.config import MosConfig
+    from ros2_mos.core.errors import ConfigError
+    from ros2_mos.core.torch_geometry import pick_device
 
     with pytest.raises(ConfigError, match="device must be auto, cpu, cuda or cuda:N, got 'quantum'"):
         MosConfig(geometry_backend="torch", device="quantum")

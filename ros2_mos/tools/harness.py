@@ -111,8 +111,8 @@ def replay_through_node(
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from ros2_mos.datasets.bags import pointcloud_topic
-    from ros2_mos.pointcloud2 import view_cloud
+    from ros2_mos.io.bags import pointcloud_topic
+    from ros2_mos.io.pointcloud2 import view_cloud
     from ros2_mos.ros.messages import MessageTypes, stamp_ns
     from ros2_mos.ros.replayer import Replayer
 

@@ -18,8 +18,8 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from ros2_mos.config import ResidualConfig, SensorConfig
-from ros2_mos.projection import check_points, project_range_columns
+from ros2_mos.core.config import ResidualConfig, SensorConfig
+from ros2_mos.core.projection import check_points, project_range_columns
 
 
 def transform_points(points: np.ndarray, transform: np.ndarray) -> np.ndarray:

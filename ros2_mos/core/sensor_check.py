@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ros2_mos.config import SENSOR_PRESETS, SensorConfig
+from ros2_mos.core.config import SENSOR_PRESETS, SensorConfig
 
 #: Rings are counted in azimuth wedges this wide (deg), split at elevation gaps above RING_GAP_DEG: less
 #: than the closest rings of any preset (HDL-64E: 1/3 deg), more than a ring's own spread in a wedge.

@@ -1,6 +1,6 @@
 """Moving-object IoU exactly as the SemanticKITTI MOS benchmark computes it.
 
-Ground truth is mapped with :func:`ros2_mos.labels.to_moving_classes`; points whose
+Ground truth is mapped with :func:`ros2_mos.io.labels.to_moving_classes`; points whose
 ground truth is ignored (0 unlabeled, 1 outlier) count for nothing.  Counts are
 accumulated over all scans of a sequence (and over sequences) before dividing,
 not averaged per scan.
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ros2_mos.errors import DatasetError
-from ros2_mos.labels import IGNORE, MOVING
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.labels import IGNORE, MOVING
 
 
 @dataclass

@@ -3,7 +3,7 @@
 ``rosbag2``/``ros2 bag`` are not on PyPI, so the simulator, ``replay`` and the
 offline ``process`` command use the pure-Python ``rosbags`` library with the
 Jazzy typestore; the bags it writes open in ``ros2 bag`` and Foxglove. Messages
-are rosbags dataclasses, which :mod:`ros2_mos.pointcloud2` handles like rclpy's.
+are rosbags dataclasses, which :mod:`ros2_mos.io.pointcloud2` handles like rclpy's.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from ros2_mos.errors import DatasetError
-from ros2_mos.pointcloud2 import fill_xyzi
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.pointcloud2 import fill_xyzi
 
 #: Message type names used in this project's bags.
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
@@ -65,7 +65,7 @@ def stamp_to_ns(stamp: Any) -> int:
 
 
 def point_field(**kwargs: Any) -> Any:
-    """PointField factory for :mod:`ros2_mos.pointcloud2`'s fill functions (rosbags type)."""
+    """PointField factory for :mod:`ros2_mos.io.pointcloud2`'s fill functions (rosbags type)."""
     return msg_class("sensor_msgs/msg/PointField")(**kwargs)
 
 

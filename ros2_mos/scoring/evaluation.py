@@ -12,11 +12,11 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ros2_mos.datasets.semantic_kitti import SemanticKittiSequence, read_label, sequence_dirs, write_label
-from ros2_mos.errors import DatasetError
-from ros2_mos.labels import SUBMISSION_MOVING_ID, semantic_ids, to_moving_classes, to_submission
-from ros2_mos.metrics import MovingIoU
-from ros2_mos.pipeline import MosPipeline, MosResult
+from ros2_mos.core.errors import DatasetError
+from ros2_mos.core.pipeline import MosPipeline, MosResult
+from ros2_mos.io.labels import SUBMISSION_MOVING_ID, semantic_ids, to_moving_classes, to_submission
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label, sequence_dirs, write_label
+from ros2_mos.scoring.metrics import MovingIoU
 
 
 @dataclass

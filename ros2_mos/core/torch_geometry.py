@@ -2,7 +2,7 @@
 
 On a GPU the CNN takes a few ms and the numpy stages (re-projecting N past scans, the
 kNN vote over ~120k points) dominate; these are the same computations as
-:mod:`ros2_mos.residuals` and :mod:`ros2_mos.postprocess` written for torch tensors, so
+:mod:`ros2_mos.core.residuals` and :mod:`ros2_mos.core.postprocess` written for torch tensors, so
 they run on CUDA.  Imported only when ``MosConfig.geometry_backend == 'torch'``: the
 default runtime never imports torch.  They also run on the CPU (used by the tests to
 check them against the numpy code).
@@ -15,9 +15,9 @@ import math
 import numpy as np
 import torch
 
-from ros2_mos.config import PostprocessConfig, ResidualConfig, SensorConfig
-from ros2_mos.errors import ConfigError
-from ros2_mos.projection import PixelIndex
+from ros2_mos.core.config import PostprocessConfig, ResidualConfig, SensorConfig
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.projection import PixelIndex
 
 _EMPTY_RANGE = 1e9
 
@@ -115,7 +115,7 @@ def knn_backproject(prob_image: torch.Tensor, range_img: torch.Tensor, pixels: P
 
 
 class TorchGeometry:
-    """Residuals and kNN on a torch device for :class:`~ros2_mos.pipeline.MosPipeline` (numpy in, numpy out).
+    """Residuals and kNN on a torch device for :class:`~ros2_mos.core.pipeline.MosPipeline` (numpy in, numpy out).
 
     Past scans are moved to the device once and kept there while they are in the buffer.
     """
@@ -134,7 +134,7 @@ class TorchGeometry:
     def residuals(self, current_range: np.ndarray, pose: np.ndarray, past: list[tuple[np.ndarray, np.ndarray]],
                   n: int, config: ResidualConfig, offsets: tuple[int, ...] | None = None,
                   signed: bool = False) -> np.ndarray:
-        """Like :func:`ros2_mos.residuals.residual_images`: residual k against ``past[offsets[k] - 1]``."""
+        """Like :func:`ros2_mos.core.residuals.residual_images`: residual k against ``past[offsets[k] - 1]``."""
         offsets = tuple(offsets) if offsets is not None else tuple(range(1, n + 1))
         chosen = [past[o - 1] for o in offsets if o <= len(past)]
         live = {id(p) for p, _ in past}
@@ -147,7 +147,7 @@ class TorchGeometry:
             config: PostprocessConfig, threshold: float = 0.5) -> np.ndarray:
         """Per-point probability by the kNN vote (``mode: nearest`` goes to numpy, as it is a plain gather)."""
         if config.mode != "knn":
-            from ros2_mos.postprocess import backproject
+            from ros2_mos.core.postprocess import backproject
 
             return backproject(prob_image, range_img, pixels, config, threshold)
         prob = torch.from_numpy(prob_image).to(self.device)

@@ -67,8 +67,8 @@ def peak_rss_mb() -> float:
 
 def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, threads: int,
                     geometry: str = "numpy", sensor: str | None = None) -> BenchResult:
-    from ros2_mos.datasets.bags import iter_pointclouds
-    from ros2_mos.pipeline import MosPipeline
+    from ros2_mos.core.pipeline import MosPipeline
+    from ros2_mos.io.bags import iter_pointclouds
     from ros2_mos.ros.messages import MessageTypes
     from ros2_mos.ros.params import load_params, mos_config, node_settings
     from ros2_mos.ros.processor import ScanProcessor

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ros2_mos.errors import ModelError
-from ros2_mos.metadata import METADATA_KEY, ModelMetadata
+from ros2_mos.core.errors import ModelError
+from ros2_mos.core.metadata import METADATA_KEY, ModelMetadata
 
 DEFAULT_MODEL_NAME = "default.onnx"
 INPUT_NAME = "input"

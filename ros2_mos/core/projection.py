@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ros2_mos.config import SensorConfig
-from ros2_mos.errors import ScanError
+from ros2_mos.core.config import SensorConfig
+from ros2_mos.core.errors import ScanError
 
 
 @dataclass

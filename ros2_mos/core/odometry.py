@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from ros2_mos.config import OdometryConfig
-from ros2_mos.errors import ConfigError
+from ros2_mos.core.config import OdometryConfig
+from ros2_mos.core.errors import ConfigError
 
 #: ICP iterations of the first call into KISS-ICP, then of each further call; other threads get the GIL between
 #: calls. Nearly every scan converges within the first call (iteration counts: benchmarks/reliability.md, round 4,

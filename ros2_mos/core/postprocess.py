@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ros2_mos.config import PostprocessConfig
-from ros2_mos.projection import PixelIndex
+from ros2_mos.core.config import PostprocessConfig
+from ros2_mos.core.projection import PixelIndex
 
 # Range given to empty pixels: far beyond any cut-off, so they never vote.
 _EMPTY_RANGE = 1e9

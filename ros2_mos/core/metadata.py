@@ -14,9 +14,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ros2_mos.config import SensorConfig
-from ros2_mos.errors import ModelError
-from ros2_mos.features import DEFAULT_MEANS, DEFAULT_STDS, InputSetup
+from ros2_mos.core.config import SensorConfig
+from ros2_mos.core.errors import ModelError
+from ros2_mos.core.network_input import DEFAULT_MEANS, DEFAULT_STDS, InputSetup
 
 METADATA_KEY = "ros2_mos"
 FORMAT_VERSION = 1

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ros2_mos.config import SensorConfig
-from ros2_mos.projection import RangeImage, pixel_index_columns
-from ros2_mos.residuals import relative_pose, transform_columns
+from ros2_mos.core.config import SensorConfig
+from ros2_mos.core.projection import RangeImage, pixel_index_columns
+from ros2_mos.core.residuals import relative_pose, transform_columns
 
 #: Pixels with a lower moving probability keep their own belief (no lookup in the previous scan).
 CANDIDATE_PROBABILITY = 0.05

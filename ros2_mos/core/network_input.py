@@ -2,7 +2,7 @@
 
 The paper's ablation feeds the CNN either frames (5 channels each: r, x, y, z, e)
 or the current frame plus N residual images (5 + N channels).  The setup and the
-normalisation travel with the model (see :mod:`ros2_mos.metadata`), so the
+normalisation travel with the model (see :mod:`ros2_mos.core.metadata`), so the
 pipeline builds exactly what the network was trained on.
 """
 
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ros2_mos.errors import ConfigError
-from ros2_mos.projection import RangeImage
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.projection import RangeImage
 
 # LiDAR-MOS / SalsaNext's SemanticKITTI statistics for (r, x, y, z, e).
 DEFAULT_MEANS = (12.12, 10.88, 0.23, -1.04, 0.21)

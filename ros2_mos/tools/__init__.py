@@ -1,0 +1,1 @@
+"""Tooling over the node and the pipeline: the benchmark and the process harness it and the demo use."""
