@@ -42,3 +42,24 @@ def test_kiss_icp_registers_every_kth_point_only():
         sizes[stride] = len(odom._kiss.local_map.point_cloud())
     # Every 4th point of a uniform cloud fills fewer 0.5 m voxels than all of them do.
     assert sizes[4] < sizes[1]
+
+
+def test_split_registration_is_kiss_icp_1_3_0s_register_frame():
+    """Issue 17.5: core/odometry.py copies the inside of KISS-ICP 1.3.0's register_frame (estimate, then the map
+    update, the ICP in slices). With the whole scan entering the map it must give KISS-ICP's own poses; a new
+    KISS-ICP that changes register_frame fails here, not silently in the labels."""
+    from importlib.metadata import version
+
+    kiss_icp = pytest.importorskip("kiss_icp.kiss_icp")
+    from ros2_mos.core.config import OdometryConfig
+    from ros2_mos.core.odometry import KissIcpOdometry
+
+    assert version("kiss-icp") == "1.3.0", "odometry.py follows KISS-ICP 1.3.0: check register_frame, then re-pin"
+    ours = KissIcpOdometry(OdometryConfig(point_stride=1))
+    theirs = kiss_icp.KissICP(ours._kiss_config)
+    for item in SequenceSimulator(10, "easy", seed=11):
+        points = item.scan.points.astype(np.float64)
+        pose = ours.register(points)
+        theirs.register_frame(points, timestamps=np.array([]))
+        np.testing.assert_allclose(pose, theirs.last_pose, atol=1e-6)
+    assert np.linalg.norm(pose[:3, 3]) > 1.0, "the ego vehicle should move in this drive"
