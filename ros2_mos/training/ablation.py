@@ -187,7 +187,7 @@ def run_ablation(
 
 def format_table(rows: Sequence[Row]) -> str:
     """A Markdown table like the paper's Tables I/II (IoU in percent)."""
-    lines = ["| Method | Input | Moving IoU (test) | Train min (CPU) | Notes |", "|---|---|---:|---:|---|"]
+    lines = ["| Method | Input | Moving IoU (test) | Train min (wall) | Notes |", "|---|---|---:|---:|---|"]
     for r in rows:
         iou = "n/a" if math.isnan(r.iou) else f"{100 * r.iou:.1f}"
         minutes = "" if r.train_minutes is None else f"{r.train_minutes:.0f}"
