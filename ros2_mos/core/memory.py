@@ -1,13 +1,11 @@
 """Keeping freed heap memory inside the process, so that per-scan arrays stop page-faulting.
 
-Every scan allocates a few dozen arrays of 0.5 MB (one float per point or per pixel)
-and frees them again.  glibc serves blocks that large with fresh ``mmap`` calls (its
-threshold starts at 128 kB) and gives the memory back on ``free``, or trims it off the
-top of the heap, so the next scan faults every page in again: on the bench that cost
-6-8 ms of the ~100 ms per scan.  Raising the mmap and trim thresholds keeps those pages
-mapped and reused; the resident size then stays at its peak (measured +5 MB) instead
-of breathing.  It is a process-wide setting, hence a switch (``tune_malloc``) on the
-pipeline's configuration.
+Every scan allocates a few dozen arrays of 0.5 MB (one float per point or per pixel) and frees them again. glibc
+serves blocks that large with fresh ``mmap`` calls (its threshold starts at 128 kB) and gives the memory back on
+``free``, or trims it off the top of the heap, so the next scan faults every page in again (its cost:
+benchmarks/design_figures.md). Raising the mmap and trim thresholds keeps those pages mapped and reused; the
+resident size then stays at its peak instead of breathing. It is a process-wide setting, hence a switch
+(``tune_malloc``) on the pipeline's configuration.
 """
 
 from __future__ import annotations

@@ -93,8 +93,9 @@ class KissIcpOdometry:
 
         Each slice starts where the last one stopped, and the GIL is free in between. A slice cannot say
         whether it converged or ran out of iterations, so the next one tells: from a converged pose its
-        first step is below the convergence criterion and it returns at once (one iteration, ~1-3 ms, the
-        price of the slicing). The pose returned is then the converged slice's, as one call returned it.
+        first step is below the convergence criterion and it returns at once (one iteration, the price of
+        the slicing: benchmarks/design_figures.md). The pose returned is then the converged slice's, as one
+        call returned it.
         """
         points = self._pybind._Vector3dVector(source)
         voxel_map = self._kiss.local_map._internal_map

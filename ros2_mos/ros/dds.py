@@ -1,10 +1,9 @@
 """The Fast DDS profile for full-size clouds between processes (``data/fastdds_large_messages.xml``).
 
-Measured with the bench's node runs on 2 cores: the profile's 32 MB shared-memory segment
-cut the transport part of the stamp -> /mos/labels latency from ~30-60 ms to ~7-17 ms (two
-hops of a 2 MB cloud).  DDS reads the profile when a process creates its participant, so it
-has to be in the environment of a process before ``rclpy.init``: ``mos_node`` sets it for itself
-when the user set no profile (so that subscribers in other processes with default settings get
+The profile's 32 MB shared-memory segment cuts the transport part of the stamp -> /mos/labels
+latency several-fold (benchmarks/design_figures.md).  DDS reads the profile when a process creates its
+participant, so it has to be in the environment of a process before ``rclpy.init``: ``mos_node`` sets it
+for itself when the user set no profile (so that subscribers in other processes with default settings get
 its full-size clouds); ``python3 -m ros2_mos.ros.dds`` prints its path for
 ``export FASTRTPS_DEFAULT_PROFILES_FILE=...`` in the driver's and other processes.
 """

@@ -213,8 +213,8 @@ class MosNode(Node):
     def _wanted(self) -> frozenset[str]:
         """The outputs to build: clouds and images only while someone subscribes to them.
 
-        Each full-size cloud costs ~1-2 ms to build and more to serialise, on a CPU the
-        pipeline needs; odometry and tf are tiny and always published (tf has no subscriber
+        Each full-size cloud costs time to build and more to serialise (benchmarks/design_figures.md),
+        on a CPU the pipeline needs; odometry and tf are tiny and always published (tf has no subscriber
         count that means anything).
         """
         lazy = {o.key for o in OUTPUTS if o.lazy}

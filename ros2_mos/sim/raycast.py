@@ -3,7 +3,7 @@
 Two scenes per scan: the static one is built once per sequence (its BVH is the
 expensive part for long routes), the small dynamic one anew for every scan;
 casting against both and keeping the nearer hit was measured faster than
-rebuilding one combined scene per scan (~40 ms vs ~55-165 ms for 131k rays).
+rebuilding one combined scene per scan (benchmarks/design_figures.md).
 Embree reports the hit distance (``tfar``) and the geometric normal directly,
 so nothing has to be recomputed from the triangle index.
 """

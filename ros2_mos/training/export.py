@@ -4,7 +4,7 @@ The exported graph is ``softmax(net(input))``: input ``"input"`` (1, C, H, W) fl
 output ``"probability"`` (1, n_classes, H, W) with channel 1 = moving.  For two classes
 the softmax is written as ``p_moving = sigmoid(l_1 - l_0)``, ``p_static = 1 - p_moving``
 (the same function): ONNX Runtime's CPU Softmax over the channel axis of an NCHW
-tensor transposes it and took 5 of the shipped model's 28 ms per scan.  The model's
+tensor transposes it, a large share of the model's time (benchmarks/design_figures.md).  The model's
 :class:`~ros2_mos.core.metadata.ModelMetadata` (setup, sensor, normalisation, network,
 training data, valid IoU) is stored as JSON in the ONNX ``metadata_props`` under
 :data:`~ros2_mos.core.metadata.METADATA_KEY`, so a model file is self-describing.

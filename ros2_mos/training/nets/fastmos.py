@@ -1,7 +1,7 @@
 """FastMOS: a CPU real-time MOS network for 64 x 2048 range images.
 
-Why this shape: on two CPU cores a SalsaNext-sized network costs ~0.6 s per
-64 x 2048 scan in ONNX Runtime, while the whole node has 100 ms.  Almost all of a
+Why this shape: on two CPU cores a SalsaNext-sized network costs several times the
+whole node's 100 ms per 64 x 2048 scan in ONNX Runtime (benchmarks/design_figures.md).  Almost all of a
 range-image CNN's cost is spent at full resolution, and a rotating LiDAR's image
 is 32x wider than high, so this network
 
