@@ -15,6 +15,7 @@ it, the node's diagnostics timer included.
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -50,6 +51,7 @@ class KissIcpOdometry:
         self._kiss_class = KissICP
         self._kiss = KissICP(cfg)
         self._pending_frame: np.ndarray | None = None
+        self.last_slice_seconds: list[float] = []
         reg = cfg.registration
         self._pybind = kiss_icp_pybind
         first = min(ICP_FIRST_SLICE, int(reg.max_num_iterations))
@@ -105,9 +107,18 @@ class KissIcpOdometry:
             return registration._align_points_to_map(points=points, voxel_map=voxel_map, initial_guess=guess,
                                                      max_correspondance_distance=3 * sigma, kernel=sigma)
 
-        pose = align(first, np.asarray(initial_guess, dtype=np.float64))
+        clock = [time.perf_counter()]
+        self.last_slice_seconds: list[float] = []  # how long each call into KISS-ICP held the GIL (last scan)
+
+        def timed(registration: Any, guess: np.ndarray) -> np.ndarray:
+            result = align(registration, guess)
+            clock.append(time.perf_counter())
+            self.last_slice_seconds.append(clock[-1] - clock[-2])
+            return result
+
+        pose = timed(first, np.asarray(initial_guess, dtype=np.float64))
         for _ in range(self._more_slices):
-            new = align(more, pose)
+            new = timed(more, pose)
             if _step(pose, new) < self._convergence:
                 return pose
             pose = new
