@@ -271,6 +271,9 @@ class OdometryConfig:
     point_stride: int = knob(2, "KISS-ICP registers every k-th point of the scan (1 = all; MOS still labels "
                                 "every point)", min=1, max=16)
     deskew: bool = knob(False, "KISS-ICP constant-velocity deskewing")
+    # ~30 ICP iterations per scan at KISS-ICP's 1e-4; 1e-3 stops sooner (benchmarks/experiments.md, round 6).
+    convergence_criterion: float = knob(1e-3, "KISS-ICP: the ICP stops when a step is smaller than this (m and rad; "
+                                              "KISS-ICP's own default is 1e-4)", min=0.0, above=True, max=0.01)
     # The limit grows with the time since the last processed scan, so dropped scans don't trip it.
     max_translation_jump: float = knob(5.0, "a larger motion per 0.1 s between two processed scans (m) is an "
                                             "odometry failure: the scan buffer is reset", min=0.0, above=True)

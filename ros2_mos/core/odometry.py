@@ -46,6 +46,7 @@ class KissIcpOdometry:
         cfg.data.deskew = config.deskew
         cfg.mapping.voxel_size = config.voxel_size if config.voxel_size is not None else config.max_range / 100.0
         cfg.mapping.max_points_per_voxel = config.max_points_per_voxel
+        cfg.registration.convergence_criterion = config.convergence_criterion
         self.config = config
         self._kiss_config = cfg
         self._kiss_class = KissICP
@@ -98,6 +99,8 @@ class KissIcpOdometry:
         first step is below the convergence criterion and it returns at once (one iteration, the price of
         the slicing: benchmarks/design_figures.md). The pose returned is then the converged slice's, as one
         call returned it.
+        (Where the step after convergence exceeds the criterion, which is rarer the smaller the criterion, the
+        slices iterate on where one call would have stopped.)
         """
         points = self._pybind._Vector3dVector(source)
         voxel_map = self._kiss.local_map._internal_map
