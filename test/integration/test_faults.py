@@ -226,8 +226,10 @@ def test_scattered_points_are_skipped_and_a_slow_registration_keeps_the_diagnost
     assert harness.node._last_output.result.n_past_available == 2  # the skipped cloud left the stream as it was
 
     arrivals: list[float] = []
-    listener = harness.peer.create_subscription(TYPES.diagnostic_array, "/diagnostics",
-                                                lambda msg: arrivals.append(time.monotonic()), 10)
+    # Kept until the harness closes: destroying a subscription while the executor spins in its own thread can kill
+    # that thread (rclpy InvalidHandle), and with it every later test of the module (seen on CI).
+    harness.peer.create_subscription(TYPES.diagnostic_array, "/diagnostics",
+                                     lambda msg: arrivals.append(time.monotonic()), 10)
     real_check = pipeline_module.implausible_message
     pipeline_module.implausible_message = lambda image: None  # let it through to KISS-ICP (~4 s of ICP here)
     try:
@@ -238,7 +240,6 @@ def test_scattered_points_are_skipped_and_a_slow_registration_keeps_the_diagnost
         slices = list(harness.node.processor.pipeline.odometry.last_slice_seconds)
     finally:
         pipeline_module.implausible_message = real_check
-        harness.peer.destroy_subscription(listener)
         harness.node.processor.reset()  # its points are in the odometry map now
     odometry_s = harness.node.stats.snapshot().stage_ms["odometry"][1] * 1e-3
     if odometry_s < 1.0:
@@ -246,11 +247,12 @@ def test_scattered_points_are_skipped_and_a_slow_registration_keeps_the_diagnost
     during = [t for t in arrivals if started <= t <= finished]
     gaps = np.diff([started, *during, finished])
     # One uninterrupted KISS-ICP call holds the GIL, so no diagnostics, for the whole registration: a gap at least
-    # as long as the registration. In slices the 0.2 s timer gets through between them, so no gap is much longer
-    # than the longest slice (the first, 32 iterations); the margin is for a loaded 2-core machine. (The bound
-    # used to be 0.75 x the registration; a registration that converged soon after its first slice broke it.)
+    # as long as the registration. In slices the 0.2 s timer gets through between them. The bound leaves room for a
+    # registration that converged soon after its long first slice (32 iterations; CI: a gap of 1.28 s in 1.55 s) and
+    # for a loaded 2-core machine (0.85 s in 1.28 s with slices of 0.26 s and 0.05 s); that the registration ran in
+    # slices at all is checked directly above.
     assert len(slices) >= 2, f"one call into KISS-ICP ({slices}): the registration was not sliced"
-    assert len(during) >= 3 and gaps.max() < max(slices) + 0.5, (gaps.max(), slices, odometry_s, len(during))
+    assert len(during) >= 3 and gaps.max() < 0.9 * odometry_s, (gaps.max(), slices, odometry_s, len(during))
 
 
 # ----------------------------------------------------------------------------- hostile PointCloud2 to the node
@@ -323,7 +325,10 @@ def test_hostile_clouds_are_skipped_with_their_reason_and_the_node_survives(harn
         except ScanError as exc:
             expected = str(exc)
         handled = harness.handled()
-        result = harness.feed(msg)
+        try:
+            result = harness.feed(msg)
+        except AssertionError as exc:
+            raise AssertionError(f"{name}: {exc} ({harness.node.stats.snapshot().last_warning})") from None
         snap = harness.node.stats.snapshot()
         assert harness.handled() == handled + 1, name
         if expected is not None:
