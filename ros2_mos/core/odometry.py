@@ -52,6 +52,7 @@ class KissIcpOdometry:
         self._kiss_class = KissICP
         self._kiss = KissICP(cfg)
         self._pending_frame: np.ndarray | None = None
+        #: How long each call into KISS-ICP held the GIL, for the last scan registered.
         self.last_slice_seconds: list[float] = []
         reg = cfg.registration
         self._pybind = kiss_icp_pybind
@@ -106,22 +107,18 @@ class KissIcpOdometry:
         voxel_map = self._kiss.local_map._internal_map
         first, more = self._slices
 
+        self.last_slice_seconds = []
+
         def align(registration: Any, guess: np.ndarray) -> np.ndarray:
-            return registration._align_points_to_map(points=points, voxel_map=voxel_map, initial_guess=guess,
+            start = time.perf_counter()
+            pose = registration._align_points_to_map(points=points, voxel_map=voxel_map, initial_guess=guess,
                                                      max_correspondance_distance=3 * sigma, kernel=sigma)
+            self.last_slice_seconds.append(time.perf_counter() - start)
+            return pose
 
-        clock = [time.perf_counter()]
-        self.last_slice_seconds: list[float] = []  # how long each call into KISS-ICP held the GIL (last scan)
-
-        def timed(registration: Any, guess: np.ndarray) -> np.ndarray:
-            result = align(registration, guess)
-            clock.append(time.perf_counter())
-            self.last_slice_seconds.append(clock[-1] - clock[-2])
-            return result
-
-        pose = timed(first, np.asarray(initial_guess, dtype=np.float64))
+        pose = align(first, np.asarray(initial_guess, dtype=np.float64))
         for _ in range(self._more_slices):
-            new = timed(more, pose)
+            new = align(more, pose)
             if _step(pose, new) < self._convergence:
                 return pose
             pose = new

@@ -195,11 +195,13 @@ class MosPipeline:
         self.odometry = KissIcpOdometry(config.odometry)
         self.buffer = ScanBuffer(self.setup.history)
         self.belief = BeliefFilter(self.sensor, config.postprocess.temporal_weight)
-        self.geometry: Any = NumpyGeometry(self.sensor, parallel=self.n_past > 1)
+        self.geometry: Any
         if config.geometry_backend == "torch":
             from ros2_mos.core.torch_geometry import TorchGeometry  # the only place the runtime may import torch
 
             self.geometry = TorchGeometry(self.sensor, config.device)
+        else:
+            self.geometry = NumpyGeometry(self.sensor, parallel=self.n_past > 1)
         self._last_stamp: float | None = None
         self._last_pose: np.ndarray | None = None
         self._sensor_mismatch: str | None = None  # None: not checked yet
@@ -282,11 +284,13 @@ class MosPipeline:
         implausible = implausible_message(image.range)
         if implausible is not None:
             raise ImplausibleScanError(implausible)
-        e = scan.remission
-        if self.setup.uses_remission and len(e) and (float(e.max()) > MAX_REMISSION or float(e.min()) < 0.0):
+        remission = scan.remission
+        if self.setup.uses_remission and len(remission) and (float(remission.max()) > MAX_REMISSION
+                                                             or float(remission.min()) < 0.0):
             notes.warnings.append(
-                f"intensity spans {float(e.min()):.3g}..{float(e.max()):.3g}, outside the 0..1 remission this model "
-                "was trained on (KITTI's convention; Velodyne drivers publish 0..255, Ouster 16-bit counts): "
+                f"intensity spans {float(remission.min()):.3g}..{float(remission.max()):.3g}, outside the 0..1 "
+                "remission this model was trained on (KITTI's convention; Velodyne drivers publish 0..255, Ouster "
+                "16-bit counts): "
                 "labels may be wrong; use a model without remission input (the shipped one) or rescale")
         if self._last_stamp is not None and timestamp <= self._last_stamp:
             notes.warnings.append(f"time went backwards ({self._last_stamp:.3f} -> {timestamp:.3f} s): buffer reset")

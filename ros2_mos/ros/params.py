@@ -2,10 +2,11 @@
 
 Pure Python (no rclpy), so the offline ``process`` command reads the same
 ``config/mos.yaml`` the node gets through ``--ros-args --params-file`` and
-builds the same pipeline. The table :data:`PARAMS` is the single source of the
-names, types, defaults and documentation; the node turns each entry into a
-``declare_parameter`` call with a descriptor, and ``config/mos.yaml`` is checked
-against it by the tests so the file and the defaults cannot drift apart.
+builds the same pipeline. The table :data:`PARAMS` lists every parameter: the
+pipeline's come from the knobs of the configuration dataclasses
+(:mod:`ros2_mos.core.config`), the node's own are defined here. The node turns each
+entry into a ``declare_parameter`` call with a descriptor; ``config/mos.yaml``
+(:func:`params_file_text`) and the README table (:func:`describe`) are made from it.
 """
 
 from __future__ import annotations
@@ -80,12 +81,10 @@ def _param(name: str, default: bool | int | float | str, description: str, **lim
     return ParamSpec(name, default, Knob(type(default), description, **limits))
 
 
-def _pipeline_params(prefix: str, cls: type, skip: tuple[str, ...] = (), describe: str = "") -> list[ParamSpec]:
+def _pipeline_params(prefix: str, cls: type, describe: str = "") -> list[ParamSpec]:
     """The ROS parameters of a configuration dataclass: one per :class:`Knob` field, named ``prefix + field``."""
     specs = []
     for f, knob in knobs(cls):
-        if f.name in skip:
-            continue
         default = knob.unset if f.default is None else f.default
         if knob.kind is float:
             default = float(default)
@@ -94,16 +93,16 @@ def _pipeline_params(prefix: str, cls: type, skip: tuple[str, ...] = (), describ
     return specs
 
 
-_MOS_TOP = ("model", "threshold", "intra_op_threads", "geometry_backend", "device", "tune_malloc")
+_MODEL, *_MOS_TOP = _pipeline_params("", MosConfig)  # ``model`` is MosConfig's first knob
 
 PARAMS: tuple[ParamSpec, ...] = (
     # --- pipeline (ros2_mos.core.config: the dataclasses define these)
-    *_pipeline_params("", MosConfig, skip=_MOS_TOP[1:]),
+    _MODEL,
     _param("sensor.preset", "",
            "Sensor preset (" + ", ".join(SENSOR_PRESETS) + "), 'custom' for the sensor.* values, "
            "or empty for the sensor the model was trained for"),
     *_pipeline_params("sensor.", SensorConfig, describe="custom sensor: "),
-    *_pipeline_params("", MosConfig, skip=_MOS_TOP[:1]),
+    *_MOS_TOP,
     *_pipeline_params("residuals.", ResidualConfig),
     *_pipeline_params("postprocess.", PostprocessConfig),
     *_pipeline_params("odometry.", OdometryConfig),
