@@ -1,11 +1,13 @@
 """Issue 14: what a subscriber in another process gets from mos_node, with and without a DDS profile.
 
-    python benchmarks/transport.py [--scans 40] [--repeat 2]
+    python benchmarks/transport.py [--scans 40] [--repeat 2] [--setup N]... [--qos sensor|reliable]
+                                   [--node-param NAME:=VALUE]...
 
 For each setup (no profile anywhere but the node's own; a profile-less node as well, i.e. Fast DDS
 defaults everywhere; the shipped profile in every process) and each QoS (sensor data / reliable), a
 peer process (test/integration/transport_peer.py) publishes full-size HDL-64-like clouds at 10 Hz and
-counts what comes back. Prints a Markdown table.
+counts what comes back. Prints a Markdown table. ``--setup`` (1-3, in that order) and ``--qos`` pick rows;
+``--node-param`` passes a parameter to every mos_node (e.g. ``worker_nice:=5``).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ PEER = ROOT / "test" / "integration" / "transport_peer.py"
 EMPTY_PROFILE = '<?xml version="1.0"?>\n<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"/>\n'
 
 
-def run(setup: str, qos: str, scans: int, domain: int, empty: Path) -> dict:
+def run(setup: str, qos: str, scans: int, domain: int, empty: Path, node_params: list[str]) -> dict:
     from ros2_mos.ros.dds import PROFILE_VARIABLES, profile_path
 
     base = {k: v for k, v in os.environ.items() if k not in PROFILE_VARIABLES and k != "RMW_IMPLEMENTATION"}
@@ -36,7 +38,8 @@ def run(setup: str, qos: str, scans: int, domain: int, empty: Path) -> dict:
         for env in (node_env, peer_env):
             env.update({v: str(profile_path()) for v in PROFILE_VARIABLES})
     node = subprocess.Popen([str(Path(sys.executable).parent / "mos_node"), "--ros-args", "-p",
-                             "qos.reliability:=" + ("reliable" if qos == "reliable" else "best_effort")],
+                             "qos.reliability:=" + ("reliable" if qos == "reliable" else "best_effort"),
+                             *[arg for p in node_params for arg in ("-p", p)]],
                             env=node_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         peer = subprocess.run([sys.executable, str(PEER), "--scans", str(scans), "--qos", qos], env=peer_env,
@@ -56,9 +59,15 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--scans", type=int, default=40)
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--setup", type=int, action="append", choices=(1, 2, 3), help="only these setups")
+    parser.add_argument("--qos", action="append", choices=("sensor", "reliable"), help="only these QoS")
+    parser.add_argument("--node-param", action="append", default=[], help="NAME:=VALUE for every mos_node")
     args = parser.parse_args()
     setups = ("no profile set by the user (the node sets its own)", "Fast DDS defaults everywhere",
               "shipped profile in every process")
+    setups = tuple(s for k, s in enumerate(setups, 1) if not args.setup or k in args.setup)
+    if args.node_param:
+        print("mos_node parameters: " + ", ".join(args.node_param))
     print("| setup | subscriber QoS | run | sent | node received | node processed | lost in queue / on the way in |"
           " static / moving / labels received | share of processed |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -67,10 +76,10 @@ def main() -> None:
         empty.write_text(EMPTY_PROFILE)
         domain = 150
         for setup in setups:
-            for qos in ("sensor", "reliable"):
+            for qos in args.qos or ("sensor", "reliable"):
                 for k in range(args.repeat):
                     domain += 1
-                    r = run(setup, qos, args.scans, domain, empty)
+                    r = run(setup, qos, args.scans, domain, empty, args.node_param)
                     got = (r["static_points"], r["moving_points"], r["labels"])
                     share = min(got) / r["processed"] if r["processed"] else float("nan")
                     print(f"| {setup} | {qos} | {k + 1} | {r['sent']} | {r['received']} | {r['processed']} | "
