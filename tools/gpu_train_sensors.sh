@@ -2,7 +2,8 @@
 # Train the per-sensor models side by side on one lent GPU machine (16 cores), in one command that ends
 # by a deadline.
 #
-#   OUT=out_dir [DEADLINE=seconds] [SCANS=100] [PER_PRESET=12] tools/gpu_train_sensors.sh [SENSOR...]
+#   OUT=out_dir [DEADLINE=seconds] [SCANS=100] [PER_PRESET=12] [WORK=/dev/shm/ros2_mos] \
+#       tools/gpu_train_sensors.sh [SENSOR...]
 #
 # 1. Simulates PER_PRESET randomised drives per preset (b*, t*, e*) plus the validation drives bv0/tv0/ev0
 #    of every sensor, seed 300 (neither the CPU recipe's seed 100 nor the evaluation suite's seeds), one
@@ -15,7 +16,10 @@
 #    epoch) and copies best.pt of each run plus one tar of logs, metrics and configs to $OUT.
 #
 # The round-5 lesson: the loader sets the pace, not the GPU (a crop costs ~5 ms on one core), so the runs
-# share the cores and not much else. Needs numpy, torch, PyYAML and embreex (a wheel in .whl/ is
+# share the cores and not much else. The round-7 lesson: on the lent machine (gVisor) simulating and caching
+# in the repository's folder ran 10-15x slower than here, and no epoch ran (benchmarks/experiments.md). The
+# data and caches now go to WORK (memory-backed /dev/shm by default; an untested guess that file writes were
+# the cost), and one drive is timed first: the script stops early if a drive takes longer than 20 s. Needs numpy, torch, PyYAML and embreex (a wheel in .whl/ is
 # installed into /tmp/site if present). A dry run on a CPU: SCANS=12 PER_PRESET=1 DEADLINE=240.
 set -u
 start=$(date +%s)
@@ -44,12 +48,20 @@ train="[${train#,}]"
 config_of() { case $1 in vlp16) echo fastmos_vlp16;; vlp32c) echo fastmos_vlp32c;; os1-64) echo fastmos_os164;;
               os1-128) echo fastmos_os1128;; hdl64) echo fastmos_beams;; *) echo "unknown sensor $1" >&2; return 1;; esac; }
 init_of() { case $1 in os1-128) echo checkpoints/fastmos_os1128_best.pt;; *) echo checkpoints/fastmos_beams_last.pt;; esac; }
+work=${WORK:-/dev/shm/ros2_mos}
+mkdir -p "$work" || exit 1
 common="train_sequences=$train valid_sequences=[bv0,tv0,ev0] poses=dataset valid_stride=2 workers=3 \
-cache_workers=4 threads=1 cache_dir=data/gcache"
+cache_workers=4 threads=1 cache_dir=$work/cache"
+probe=$(date +%s)
+python3 tools/train_models.py --config "configs/$(config_of "${sensors[0]}").yaml" --data "$work/probe" \
+    --scans "$scans" --seed 301 --jobs 1 --simulate-only --variant "probe train_sequences=[b00] valid_sequences=[]" \
+    || exit 1
+echo "one ${sensors[0]} drive of $scans scans: $(( $(date +%s) - probe )) s"
+[ $(( $(date +%s) - probe )) -le 20 ] || { echo "simulation too slow here for the deadline; stopping"; exit 1; }
 
 for sensor in "${sensors[@]}"; do
     config=$(config_of "$sensor") || exit 2
-    python3 tools/train_models.py --config "configs/$config.yaml" --data "data/g_$sensor" --scans "$scans" \
+    python3 tools/train_models.py --config "configs/$config.yaml" --data "$work/g_$sensor" --scans "$scans" \
         --seed 300 --jobs "$(nproc)" --simulate-only --variant "sim $common" || exit 1
 done
 echo "simulation done after $(( $(date +%s) - start )) s"
@@ -64,7 +76,7 @@ lr=0.0005 lr_decay=0.93 warmup_epochs=0.5")
         variants+=(--variant "g_${sensor}_wide $common network_kwargs={\"widths\":[32,64,96],\"full_res_channels\":16} \
 init_from=null epochs=40 max_minutes=$minutes lr=0.003 lr_decay=0.92 warmup_epochs=1")
     fi
-    timeout "$left" python3 tools/train_models.py --config "configs/$config.yaml" --data "data/g_$sensor" \
+    timeout "$left" python3 tools/train_models.py --config "configs/$config.yaml" --data "$work/g_$sensor" \
         --scans "$scans" --seed 300 --jobs 4 --runs runs_gpu "${variants[@]}" > "runs_gpu_$sensor.out" 2>&1 &
 done
 wait
