@@ -19,8 +19,9 @@
 # share the cores and not much else. The round-7 lesson: on the lent machine (gVisor) simulating and caching
 # in the repository's folder ran 10-15x slower than here, and no epoch ran (benchmarks/experiments.md). The
 # data and caches now go to WORK (memory-backed /dev/shm by default; an untested guess that file writes were
-# the cost), and one drive is timed first: the script stops early if a drive takes longer than 20 s. Needs numpy, torch, PyYAML and embreex (a wheel in .whl/ is
-# installed into /tmp/site if present). A dry run on a CPU: SCANS=12 PER_PRESET=1 DEADLINE=240.
+# the cost), and one drive is timed first: the script stops early if a drive takes longer than 20 s.
+# Needs numpy, torch, PyYAML and embreex (a wheel in .whl/ is installed into /tmp/site if present).
+# A dry run on a CPU: SCANS=12 PER_PRESET=1 DEADLINE=240.
 set -u
 start=$(date +%s)
 out=${OUT:?set OUT to the folder the results go to}
@@ -56,8 +57,9 @@ probe=$(date +%s)
 python3 tools/train_models.py --config "configs/$(config_of "${sensors[0]}").yaml" --data "$work/probe" \
     --scans "$scans" --seed 301 --jobs 1 --simulate-only --variant "probe train_sequences=[b00] valid_sequences=[]" \
     || exit 1
-echo "one ${sensors[0]} drive of $scans scans: $(( $(date +%s) - probe )) s"
-[ $(( $(date +%s) - probe )) -le 20 ] || { echo "simulation too slow here for the deadline; stopping"; exit 1; }
+probe=$(( $(date +%s) - probe ))
+echo "one ${sensors[0]} drive of $scans scans: $probe s"
+[ "$probe" -le 20 ] || { echo "simulation too slow here for the deadline; stopping"; exit 1; }
 
 for sensor in "${sensors[@]}"; do
     config=$(config_of "$sensor") || exit 2
