@@ -13,8 +13,9 @@ from ros2_mos.core.network_input import InputSetup  # noqa: E402
 from ros2_mos.training.export import export_onnx  # noqa: E402
 from ros2_mos.training.nets import build_network, network_names  # noqa: E402
 
-# one frame, two frames, N = 1, N = 8 (5, 10, 6, 13 channels)
-SETUPS = [InputSetup("residual", 0), InputSetup("frames", 1), InputSetup("residual", 1), InputSetup("residual", 8)]
+# one frame, two frames, N = 1, N = 8 (5, 10, 6, 13 channels); z + signed residuals and free space at 1, 2, 4, 8 (9)
+SETUPS = [InputSetup("residual", 0), InputSetup("frames", 1), InputSetup("residual", 1), InputSetup("residual", 8),
+          InputSetup("residual", 4, (1, 2, 4, 8), True, ("z",), free_space=True)]
 NETS = ["fastmos", "salsanext", "rangenet21", "minet"]
 
 

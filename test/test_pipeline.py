@@ -9,6 +9,7 @@ from ros2_mos.core.config import MosConfig, OdometryConfig, PostprocessConfig, S
 from ros2_mos.core.errors import ConfigError, ImplausibleScanError, ModelError, ScanError
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.core.projection import project
 from ros2_mos.scoring.metrics import MovingIoU
 
 
@@ -302,6 +303,31 @@ def test_past_offsets_and_signed_residuals_reach_the_network(tmp_path):
     assert available == [0, 1, 1, 2, 2]
     assert (result.residuals < 0).any() and (result.residuals > 0).any()
     assert not result.degraded
+
+
+def test_free_space_images_reach_the_network_after_the_residuals(tmp_path):
+    """A free-space model gets its residuals, then the free-space images against each past scan's own range
+    image, at the same offsets; the buffer keeps those range images only for such models."""
+    from ros2_mos.core.network_input import InputSetup
+    from ros2_mos.core.residuals import free_space_images
+
+    setup = InputSetup("residual", 2, (1, 3), signed=True, image_channels=("z",), free_space=True)
+    model = make_threshold_model(tmp_path / "free.onnx", setup=setup)
+    pipe = MosPipeline(MosConfig(model=str(model)))
+    assert pipe.model.channels == 1 + 2 + 2
+    scans = street_sequence(5, seed=3)
+    for k, (pts, rem, moving, pose) in enumerate(scans):
+        past = [(s.range_image, s.pose) for s in pipe.buffer.newest_first()]
+        result = pipe.process(pts, rem, 0.1 * k, pose=pose)
+        image = project(pts, rem, TEST_SENSOR)
+        expected = free_space_images(image.xyz, image.mask, pose, past, (1, 3), TEST_SENSOR, pipe.config.residuals)
+        assert result.residuals.shape == (4, TEST_SENSOR.height, TEST_SENSOR.width)
+        np.testing.assert_array_equal(result.residuals[2:], expected)
+    assert (result.residuals[2:] > 0.05).any()
+    assert pipe.buffer.newest_first()[0].range_image is not None
+    plain = MosPipeline(MosConfig(model=str(make_threshold_model(tmp_path / "plain.onnx"))))
+    plain.process(*scans[0][:2], 0.0, pose=scans[0][3])
+    assert plain.buffer.newest_first()[0].range_image is None
 
 
 def test_intensity_outside_0_1_flags_a_remission_model_but_not_a_model_without_it(tmp_path, tiny_model_path):

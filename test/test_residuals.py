@@ -101,3 +101,68 @@ def _yaw(angle: float) -> np.ndarray:
     t = np.eye(4)
     t[:2, :2] = [[c, -s], [s, c]]
     return t
+
+
+def _one_point_image(point: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W, 3) xyz and mask of an image holding one point (at its own pixel)."""
+    from ros2_mos.core.projection import pixel_index
+
+    pix = pixel_index(np.array([point], np.float32), SENSOR)
+    xyz = np.zeros((SENSOR.height, SENSOR.width, 3), np.float32)
+    mask = np.zeros((SENSOR.height, SENSOR.width), bool)
+    xyz[pix.v[0], pix.u[0]] = point
+    mask[pix.v[0], pix.u[0]] = True
+    return xyz, mask
+
+
+def test_free_space_asks_the_past_rays_with_hand_computed_values():
+    from ros2_mos.core.projection import pixel_index
+    from ros2_mos.core.residuals import free_space_image
+
+    # The sensor moved 2 m forward along x since the past scan; a point now 8 m ahead was 10 m ahead then.
+    xyz, mask = _one_point_image((8.0, 0.0, 0.0))
+    to_past = translation(2.0)  # current frame -> past frame
+    pix = pixel_index(np.array([[10.0, 0.0, 0.0]], np.float32), SENSOR)
+    for seen, expected in [(15.0, 0.5), (10.0, 0.0), (6.0, -0.4), (0.0, 0.0), (60.0, 0.0)]:
+        past_range = np.zeros((SENSOR.height, SENSOR.width), np.float32)
+        past_range[pix.v[0], pix.u[0]] = seen
+        out = free_space_image(xyz, mask, past_range, to_past, SENSOR, WINDOW)
+        # (15 − 10) / 10 = +0.5: the past ray passed through where the point stands now (it moved in);
+        # 10: the past scan saw it there; 6: something hid it ((6 − 10) / 10); empty or beyond 50 m: no evidence.
+        assert out[mask][0] == pytest.approx(expected, abs=1e-6), seen
+        assert (out[~mask] == 0).all()
+
+
+def test_free_space_is_silent_on_a_static_scene_and_where_the_past_scan_saw_another_side():
+    from ros2_mos.core.projection import project
+    from ros2_mos.core.residuals import free_space_images
+
+    world = room()
+    past_pose, current_pose = np.eye(4), translation(1.5, 0.5) @ _yaw(0.2)
+    past_scan = transform_points(world, np.linalg.inv(past_pose))
+    current = project(transform_points(world, np.linalg.inv(current_pose)), np.zeros(len(world), np.float32), SENSOR)
+    own = past_range_image(past_scan, np.eye(4), np.eye(4), SENSOR)
+    out = free_space_images(current.xyz, current.mask, current_pose, [(own, past_pose)], (1, 2), SENSOR, WINDOW)
+    assert out.shape == (2, SENSOR.height, SENSOR.width)
+    # Static walls: a past ray lands within a pixel's footprint of the point (a few % at grazing pixels).
+    assert np.median(np.abs(out[0][current.mask])) < 0.01
+    assert (out[1] == 0).all()  # no scan two back: zero
+
+
+def test_free_space_sees_a_box_that_moved_in_but_not_one_the_past_scan_saw_from_behind():
+    from ros2_mos.core.projection import project
+    from ros2_mos.core.residuals import free_space_image
+
+    wall = np.column_stack([np.full(4000, 20.0), np.random.default_rng(1).uniform(-8, 8, (4000, 2))])
+    ys, zs = np.meshgrid(np.linspace(-1, 1, 40), np.linspace(-1, 1, 40))
+    box = np.column_stack([np.full(ys.size, 10.0), ys.ravel(), zs.ravel()])
+    current = project(np.vstack([wall, box]).astype(np.float32), np.zeros(len(wall) + len(box), np.float32), SENSOR)
+    on_box = current.mask & (np.abs(current.range - 10.0) < 0.2)
+    # Past scan of the empty room (the box moved in): the past rays reached the wall at ~20 m.
+    empty = past_range_image(wall, np.eye(4), np.eye(4), SENSOR)
+    moved_in = free_space_image(current.xyz, current.mask, empty, np.eye(4), SENSOR, WINDOW)
+    assert np.median(moved_in[on_box]) == pytest.approx(1.0, abs=0.1)  # (20 − 10) / 10
+    # Past scan that saw the box's far side (a closer surface along those rays, 9.5 m): hidden, not free.
+    behind = past_range_image(np.vstack([wall, box - [0.5, 0, 0]]), np.eye(4), np.eye(4), SENSOR)
+    hidden = free_space_image(current.xyz, current.mask, behind, np.eye(4), SENSOR, WINDOW)
+    assert (hidden[on_box] <= 0).mean() > 0.95

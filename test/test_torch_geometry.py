@@ -83,3 +83,16 @@ def test_devices_this_torch_cannot_use_are_config_errors():
     if not torch.cuda.is_available():  # this CPU build: cuda is refused with the reason, not at the first scan
         with pytest.raises(ConfigError, match="no CUDA device"):
             pick_device("cuda")
+
+
+def test_free_space_matches_numpy():
+    from ros2_mos.core.residuals import free_space_images
+
+    seq = street_sequence(4)
+    past = [(project_range(p, TEST_SENSOR), pose) for p, _, _, pose in seq[:3]][::-1]  # own range images
+    pts, _, _, pose = seq[3]
+    current = project(pts, np.zeros(len(pts), np.float32), TEST_SENSOR)
+    ref = free_space_images(current.xyz, current.mask, pose, past, (1, 3), TEST_SENSOR, ResidualConfig())
+    got = torch_geometry.TorchGeometry(TEST_SENSOR, "cpu").free_space(current, pose, past, (1, 3), ResidualConfig())
+    assert (ref > 0.05).any()
+    assert np.isclose(got, ref, atol=1e-3).mean() > 0.995

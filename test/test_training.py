@@ -70,6 +70,41 @@ def test_cache_matches_the_core_pipeline(data_root, tmp_path):
     assert SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec).directory == cache.directory
 
 
+def test_cached_free_space_images_match_the_core(data_root, tmp_path):
+    from ros2_mos.core.residuals import free_space_images
+
+    spec = CacheSpec(sensor=TEST_SENSOR, n_residual=3, n_frames=0, free_space_offsets=(1, 3))
+    cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=2)
+    scans = street_sequence(5, seed=0)
+    i = 3
+    pts, rem, _, pose = scans[i]
+    image = project(pts, rem, TEST_SENSOR)
+    past = [(project(scans[j][0], scans[j][1], TEST_SENSOR).range, scans[j][3]) for j in (2, 1, 0)]
+    expected = free_space_images(image.xyz, image.mask, pose, past, (1, 3), TEST_SENSOR, spec.residual)
+    assert (expected > 0.05).any()  # the moving box stands where past rays passed
+    np.testing.assert_allclose(cache.free_space[i].astype(np.float32), expected, rtol=2e-3, atol=2e-3)
+    assert (cache.free_space[0] == 0).all() and (cache.free_space[2, 1] == 0).all()  # no scan 3 back yet
+    # The dataset appends them after the residuals at the setup's offsets.
+    setup = InputSetup("residual", 2, (1, 3), signed=True, free_space=True)
+    x, _ = MosDataset([cache], setup, [0.0] * 5, [1.0] * 5)[i]
+    assert x.shape[0] == 5 + 2 + 2
+    np.testing.assert_allclose(x[5:7].numpy(), np.asarray(cache.residual[i, [0, 2]], np.float32))
+    np.testing.assert_allclose(x[7:].numpy(), np.asarray(cache.free_space[i], np.float32))
+    # A cache without them does not serve such a setup; bad offsets are refused.
+    assert not CacheSpec(sensor=TEST_SENSOR, n_residual=3).serves(setup) and spec.serves(setup)
+    with pytest.raises(ConfigError, match="free_space_offsets"):
+        CacheSpec(sensor=TEST_SENSOR, n_residual=3, free_space_offsets=(4,))
+
+
+def test_free_space_inputs_are_residual_inputs_with_their_own_channels():
+    setup = InputSetup("residual", 3, (1, 2, 4), signed=True, image_channels=("z",), free_space=True)
+    assert (setup.past_channels, setup.channels) == (6, 7)
+    assert setup.label == "signed residual N=3 at 1,2,4 + free space"
+    for bad in (dict(kind="frames", n_past=1), dict(kind="residual", n_past=0)):
+        with pytest.raises(ConfigError, match="free_space"):
+            InputSetup(free_space=True, **bad)
+
+
 def test_image_space_rotation_and_flip_match_point_space(data_root, tmp_path):
     """A column roll/reversal + x,y rotation/negation equals projecting rotated/flipped points."""
     spec = CacheSpec(sensor=TEST_SENSOR, n_residual=1, n_frames=0)
@@ -302,6 +337,24 @@ def test_fine_tuning_starts_from_the_checkpoints_weights_and_normalisation(data_
     with pytest.raises(ConfigError, match="init_from"):
         Trainer(_config(data_root, tmp_path / "c", n_past=3, init_from=str(tmp_path / "a" / "run" / "last.pt")),
                 data_root, show_progress=False)
+    # The same input plus free-space images: the checkpoint's weights, zero weights for the new channels.
+    wider = Trainer(_config(data_root, tmp_path / "e", free_space=True,
+                            init_from=str(tmp_path / "a" / "run" / "last.pt")), data_root, show_progress=False)
+    x = torch.randn(1, 5 + 2, TEST_SENSOR.height, 64)
+    first.model.eval()
+    wider.model.eval()
+    with torch.no_grad():  # whatever the new channels hold, the output is the old network's
+        torch.testing.assert_close(wider.model(torch.cat([x, torch.randn(1, 2, TEST_SENSOR.height, 64)], 1)),
+                                   first.model(x))
+    widened = 0
+    for k, v in wider.model.state_dict().items():
+        old = base["model"][k]
+        if v.shape != old.shape:
+            widened += 1
+            assert torch.equal(v[:, : old.shape[1]], old) and (v[:, old.shape[1]:] == 0).all()
+        else:
+            assert torch.equal(v, old)
+    assert widened >= 1
     truncated = tmp_path / "truncated.pt"
     truncated.write_bytes((tmp_path / "a" / "run" / "last.pt").read_bytes()[:5000])
     with pytest.raises(ConfigError, match="not a readable checkpoint"):

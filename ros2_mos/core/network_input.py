@@ -35,6 +35,11 @@ class InputSetup:
     (it moved away, or the current point was hidden behind it).  ``frames``: the current
     frame plus ``n_past`` past frames re-projected into it.
 
+    ``free_space`` (residual inputs) adds ``n_past`` free-space images at the same offsets
+    (:func:`ros2_mos.core.residuals.free_space_image`): the residual asked along the past scan's own
+    rays, which tells a point that stood where a past ray passed through (it moved in) from a
+    surface that the past scan saw from another side.
+
     ``image_channels`` picks which of r, x, y, z, remission of each frame the network
     takes (LiDAR-MOS takes all five; a model without remission does not depend on a
     driver's intensity scale).
@@ -45,6 +50,7 @@ class InputSetup:
     past_offsets: tuple[int, ...] = ()
     signed: bool = False
     image_channels: tuple[str, ...] = IMAGE_CHANNELS
+    free_space: bool = False
 
     def __post_init__(self) -> None:
         # JSON metadata brings lists back: keep the dataclass hashable and comparable.
@@ -65,6 +71,8 @@ class InputSetup:
                 raise ConfigError(f"past_offsets reach at most 32 scans back, got {self.past_offsets[-1]}")
         if self.signed and self.kind != "residual":
             raise ConfigError("signed applies to residual inputs only")
+        if self.free_space and (self.kind != "residual" or self.n_past == 0):
+            raise ConfigError("free_space applies to residual inputs with n_past >= 1 only")
         unknown = [c for c in self.image_channels if c not in IMAGE_CHANNELS]
         if unknown or not self.image_channels or len(set(self.image_channels)) != len(self.image_channels):
             raise ConfigError(f"image_channels must be distinct names out of {list(IMAGE_CHANNELS)}, "
@@ -92,9 +100,15 @@ class InputSetup:
         return "remission" in self.image_channels
 
     @property
+    def past_channels(self) -> int:
+        """Channels built from the past scans: residuals (then free-space images), or past frames."""
+        if self.kind == "residual":
+            return self.n_past * (2 if self.free_space else 1)
+        return len(self.image_channels) * self.n_past
+
+    @property
     def channels(self) -> int:
-        frame = len(self.image_channels)
-        return frame + self.n_past if self.kind == "residual" else frame * (1 + self.n_past)
+        return len(self.image_channels) + self.past_channels
 
     @property
     def label(self) -> str:
@@ -104,7 +118,8 @@ class InputSetup:
         if self.kind == "frames":
             return f"{1 + self.n_past} frames"
         text = f"{'signed ' if self.signed else ''}residual N={self.n_past}"
-        return text + (f" at {','.join(map(str, self.offsets))}" if self.past_offsets else "")
+        text += f" at {','.join(map(str, self.offsets))}" if self.past_offsets else ""
+        return text + (" + free space" if self.free_space else "")
 
 
 def frame_channels(
@@ -137,9 +152,9 @@ def assemble_input(
 
     ``extra`` is the (n_past, H, W) residual stack for ``residual`` setups (signed
     residuals when ``setup.signed``, else absolute ones; an absolute value is taken here
-    if signed ones are given to an unsigned setup), or the past frames re-projected into
-    the current frame (newest first) for ``frames`` setups; a missing past input is all
-    zeros.
+    if signed ones are given to an unsigned setup), followed by the n_past free-space images
+    when ``setup.free_space``; or the past frames re-projected into the current frame (newest
+    first) for ``frames`` setups. A missing past input is all zeros.
     """
     h, w = current.range.shape
     out = np.zeros((setup.channels, h, w), dtype=np.float32)
@@ -147,12 +162,13 @@ def assemble_input(
     out[:n_frame] = frame_channels(current, means, stds, setup.channel_index)
     if setup.kind == "residual":
         res = np.asarray(extra, dtype=np.float32)
-        if res.shape[1:] != (h, w) or len(res) > setup.n_past:
+        if res.ndim != 3 or res.shape[1:] != (h, w) or len(res) > setup.past_channels or (
+                setup.free_space and len(res) != setup.past_channels):
             raise ConfigError(f"residual stack of shape {res.shape} does not fit setup {setup} at {h} x {w}")
-        if setup.signed:
-            out[n_frame : n_frame + len(res)] = res
-        else:
-            np.abs(res, out=out[n_frame : n_frame + len(res)])
+        out[n_frame : n_frame + len(res)] = res
+        if not setup.signed:
+            n_abs = min(len(res), setup.n_past)  # free-space images keep their sign
+            np.abs(out[n_frame : n_frame + n_abs], out=out[n_frame : n_frame + n_abs])
     else:
         frames = list(extra)[: setup.n_past]
         for j, frame in enumerate(frames):

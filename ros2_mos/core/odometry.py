@@ -161,6 +161,7 @@ class BufferedScan:
     remission: np.ndarray  # (N,) float32
     pose: np.ndarray  # (4, 4) world pose
     timestamp: float
+    range_image: np.ndarray | None = None  # (H, W) its own range image (free-space inputs need it)
 
 
 class ScanBuffer:

@@ -24,7 +24,7 @@ from ros2_mos.core.network_input import assemble_input
 from ros2_mos.core.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
 from ros2_mos.core.postprocess import backproject
 from ros2_mos.core.projection import PixelIndex, RangeImage, check_points, finite_mask, project
-from ros2_mos.core.residuals import relative_pose, residual_images, transform_points
+from ros2_mos.core.residuals import free_space_images, relative_pose, residual_images, transform_points
 from ros2_mos.core.segments import drop_small_regions, fill_segments
 from ros2_mos.core.sensor_check import implausible_message, mismatch_message
 from ros2_mos.core.temporal import BeliefFilter
@@ -106,6 +106,12 @@ class NumpyGeometry:
         return residual_images(current_range, pose, past, n, self.sensor, config,
                                map_fn=self._pool.map if self._pool is not None else map, offsets=offsets,
                                signed=signed)
+
+    def free_space(self, image: RangeImage, pose: np.ndarray, past: list[tuple[np.ndarray, np.ndarray]],
+                   offsets: tuple[int, ...], config: ResidualConfig) -> np.ndarray:
+        """Free-space images against ``past`` (own range image, world pose), newest first."""
+        return free_space_images(image.xyz, image.mask, pose, past, offsets, self.sensor, config,
+                                 map_fn=self._pool.map if self._pool is not None else map)
 
     def knn(self, prob_image: np.ndarray, range_image: np.ndarray, pixels: PixelIndex, config: PostprocessConfig,
             threshold: float) -> np.ndarray:
@@ -259,7 +265,7 @@ class MosPipeline:
         prob_image, point_prob = self._postprocess(prob_image, image)
         moving = point_prob >= self.threshold
         watch.lap("postprocess")
-        self._remember(scan, pose, timestamp, moving)
+        self._remember(scan, image, pose, timestamp, moving)
         watch.lap("map_update")
         watch.total()
         return MosResult(
@@ -336,6 +342,10 @@ class MosPipeline:
         if self.setup.kind == "residual":
             residuals = self.geometry.residuals(image.range, pose, [(s.points, s.pose) for s in past], self.n_past,
                                                 self.config.residuals, self.setup.offsets, self.setup.signed)
+            if self.setup.free_space:
+                free = self.geometry.free_space(image, pose, [(s.range_image, s.pose) for s in past],
+                                                self.setup.offsets, self.config.residuals)
+                residuals = np.concatenate([residuals, free])
             return residuals, residuals
         frames = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor)
                   for s in past]
@@ -359,12 +369,14 @@ class MosPipeline:
         return prob_image, self.geometry.knn(prob_image, image.range, image.pixels, self.config.postprocess,
                                              self.threshold)
 
-    def _remember(self, scan: "_Scan", pose: np.ndarray, timestamp: float, moving: np.ndarray) -> None:
+    def _remember(self, scan: "_Scan", image: RangeImage, pose: np.ndarray, timestamp: float,
+                  moving: np.ndarray) -> None:
         """The odometry map takes the scan (all of it, or its static points) and the buffer keeps it."""
         if self.config.odometry.map_update == "static":
             self.odometry.update_map(scan.xyz[~moving])
         else:
             self.odometry.update_map()
-        self.buffer.push(BufferedScan(points=scan.xyz, remission=scan.remission, pose=pose, timestamp=timestamp))
+        self.buffer.push(BufferedScan(points=scan.xyz, remission=scan.remission, pose=pose, timestamp=timestamp,
+                                      range_image=image.range if self.setup.free_space else None))
         self._last_stamp = timestamp
         self._last_pose = pose

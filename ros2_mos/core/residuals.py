@@ -10,6 +10,14 @@ current point (that space was free: something moved in), negative where a past r
 came from closer (something moved away, or the current point was hidden behind it).
 The (2, 50) m window and the normalisation by the current range are those of the
 LiDAR-MOS reference code.
+
+The re-projection only approximates the past scan's rays: near the ego, a static surface that the
+past scan saw from another side (a parked car being passed) re-projects with gaps through which
+farther past points show, and reads as "moved in". :func:`free_space_image` asks the past scan's
+own rays instead: each current point is moved into the past scan's frame and compared with the
+range that the past scan measured in that direction, ``(r_j(q) − |q|) / |q|``: positive where
+the past ray passed beyond the point (its place was free then: it moved in), negative where the
+past scan saw something closer (the point was hidden then: no evidence).
 """
 
 from __future__ import annotations
@@ -19,7 +27,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from ros2_mos.core.config import ResidualConfig, SensorConfig
-from ros2_mos.core.projection import check_points, project_range_columns
+from ros2_mos.core.projection import check_points, pixel_index_columns, project_range_columns
 
 
 def transform_points(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
@@ -105,5 +113,60 @@ def residual_images(
 
     results: Iterator[np.ndarray] = iter(map_fn(one, chosen))
     for j, image in enumerate(results):
+        out[j] = image
+    return out
+
+
+def free_space_image(
+    current_xyz: np.ndarray,
+    current_mask: np.ndarray,
+    past_range: np.ndarray,
+    to_past: np.ndarray,
+    sensor: SensorConfig,
+    config: ResidualConfig,
+) -> np.ndarray:
+    """(H, W) ``(r_j(q) − |q|) / |q|`` per current pixel, along the past scan's own rays; 0 elsewhere.
+
+    ``current_xyz`` (H, W, 3) holds each current pixel's point, ``current_mask`` (H, W) which pixels
+    hold one; ``past_range`` (H, W) is the past scan's own range image (in its own frame) and
+    ``to_past`` the 4x4 transform from the current scan's frame into the past scan's. A pixel is 0
+    where its point leaves the past image or either range lies outside the residual window.
+    """
+    out = np.zeros(current_mask.shape, dtype=np.float32)
+    rows, cols = np.nonzero(current_mask)
+    if len(rows) == 0:
+        return out
+    x, y, z = transform_columns(np.asarray(current_xyz[rows, cols], np.float32), to_past)
+    pixels = pixel_index_columns(x, y, z, sensor)
+    seen = past_range[pixels.v, pixels.u]
+    here = pixels.range
+    lo, hi = config.min_range, config.max_range
+    valid = pixels.in_image & (here > lo) & (here < hi) & (seen > lo) & (seen < hi)
+    out[rows[valid], cols[valid]] = (seen[valid] - here[valid]) / here[valid]
+    return out
+
+
+def free_space_images(
+    current_xyz: np.ndarray,
+    current_mask: np.ndarray,
+    current_pose: np.ndarray,
+    past_scans: list[tuple[np.ndarray, np.ndarray]],
+    offsets: Sequence[int],
+    sensor: SensorConfig,
+    config: ResidualConfig,
+    map_fn: Callable[..., Iterable] = map,
+) -> np.ndarray:
+    """(len(offsets), H, W) :func:`free_space_image` against the scans ``offsets`` back; missing ones stay 0.
+
+    ``past_scans`` holds (the past scan's own range image, its world pose), newest first.
+    """
+    out = np.zeros((len(offsets),) + current_mask.shape, dtype=np.float32)
+    chosen = [past_scans[o - 1] for o in offsets if o <= len(past_scans)]
+
+    def one(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        return free_space_image(current_xyz, current_mask, scan[0], relative_pose(scan[1], current_pose), sensor,
+                                config)
+
+    for j, image in enumerate(map_fn(one, chosen)):
         out[j] = image
     return out

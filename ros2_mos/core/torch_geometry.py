@@ -17,7 +17,8 @@ import torch
 
 from ros2_mos.core.config import PostprocessConfig, ResidualConfig, SensorConfig
 from ros2_mos.core.errors import ConfigError
-from ros2_mos.core.projection import PixelIndex
+from ros2_mos.core.projection import PixelIndex, RangeImage
+from ros2_mos.core.residuals import relative_pose
 
 _EMPTY_RANGE = 1e9
 
@@ -38,22 +39,47 @@ def pick_device(name: str = "auto") -> torch.device:
     return device
 
 
-def range_image(points: torch.Tensor, sensor: SensorConfig) -> torch.Tensor:
-    """(H, W) closest range per pixel (0 where empty) of (N, 3) points, like ``projection.project_range``."""
+def pixels_of(points: torch.Tensor, sensor: SensorConfig) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor,
+                                                                       torch.Tensor]:
+    """Row, column, range and inside-the-image flag of (N, 3) points, like ``projection.pixel_index``."""
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
     r = torch.sqrt(x * x + y * y + z * z)
-    pitch = torch.asin(torch.clamp(z / r, -1.0, 1.0))
+    pitch = torch.asin(torch.clamp(z / torch.clamp(r, min=1e-12), -1.0, 1.0))
     yaw = torch.atan2(y, x)
     u_f = 0.5 * (1.0 - yaw / math.pi) * sensor.width
     v_f = (1.0 - (pitch - sensor.fov_down) / sensor.fov) * sensor.height
     inside = (v_f >= 0) & (v_f < sensor.height) & (r > sensor.min_range) & (r < sensor.max_range)
     u = torch.clamp(torch.floor(u_f), 0, sensor.width - 1).long()
     v = torch.clamp(torch.floor(v_f), 0, sensor.height - 1).long()
+    return v, u, r, inside
+
+
+def range_image(points: torch.Tensor, sensor: SensorConfig) -> torch.Tensor:
+    """(H, W) closest range per pixel (0 where empty) of (N, 3) points, like ``projection.project_range``."""
+    v, u, r, inside = pixels_of(points, sensor)
     pix = (v * sensor.width + u)[inside]
     best = torch.full((sensor.height * sensor.width,), float("inf"), device=points.device, dtype=points.dtype)
     best.scatter_reduce_(0, pix, r[inside], reduce="amin")
     best[torch.isinf(best)] = 0.0
     return best.view(sensor.height, sensor.width)
+
+
+def free_space_image(current_xyz: torch.Tensor, current_mask: torch.Tensor, past_range: torch.Tensor,
+                     to_past: np.ndarray, sensor: SensorConfig, config: ResidualConfig) -> torch.Tensor:
+    """Like :func:`ros2_mos.core.residuals.free_space_image`, on device tensors."""
+    out = torch.zeros(current_mask.shape, device=current_xyz.device, dtype=torch.float32)
+    points = current_xyz[current_mask]
+    if len(points) == 0:
+        return out
+    t = torch.as_tensor(to_past, dtype=points.dtype, device=points.device)
+    v, u, here, inside = pixels_of(points @ t[:3, :3].T + t[:3, 3], sensor)
+    seen = past_range[v, u]
+    lo, hi = config.min_range, config.max_range
+    valid = inside & (here > lo) & (here < hi) & (seen > lo) & (seen < hi)
+    values = torch.where(valid, (seen - here) / torch.where(valid, here, torch.ones_like(here)),
+                         torch.zeros_like(here))
+    out[current_mask] = values
+    return out
 
 
 def residual_images(current_range: torch.Tensor, current_pose: np.ndarray, past: list[tuple[torch.Tensor, np.ndarray]],
@@ -142,6 +168,21 @@ class TorchGeometry:
         cur = torch.from_numpy(current_range).to(self.device)
         on_device = [(self._on_device(p), q) for p, q in chosen]
         return residual_images(cur, pose, on_device, n, self.sensor, config, signed).cpu().numpy()
+
+    def free_space(self, image: RangeImage, pose: np.ndarray, past: list[tuple[np.ndarray, np.ndarray]],
+                   offsets: tuple[int, ...], config: ResidualConfig) -> np.ndarray:
+        """Like :func:`ros2_mos.core.residuals.free_space_images`: against ``past`` (own range image, pose)."""
+        out = np.zeros((len(offsets),) + image.range.shape, np.float32)
+        chosen = [past[o - 1] for o in offsets if o <= len(past)]
+        if not chosen:
+            return out
+        xyz = torch.from_numpy(np.ascontiguousarray(image.xyz)).to(self.device)
+        mask = torch.from_numpy(image.mask).to(self.device)
+        for j, (past_range, past_pose) in enumerate(chosen):
+            own = torch.from_numpy(past_range).to(self.device)
+            out[j] = free_space_image(xyz, mask, own, relative_pose(past_pose, pose), self.sensor,
+                                      config).cpu().numpy()
+        return out
 
     def knn(self, prob_image: np.ndarray, range_img: np.ndarray, pixels: PixelIndex,
             config: PostprocessConfig, threshold: float = 0.5) -> np.ndarray:

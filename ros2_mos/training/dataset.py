@@ -73,7 +73,13 @@ from ros2_mos.core.config import ResidualConfig, SensorConfig
 from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.core.network_input import InputSetup, assemble_input
 from ros2_mos.core.projection import PixelIndex, RangeImage, finite_mask, project, project_range_columns
-from ros2_mos.core.residuals import relative_pose, residual_image, transform_columns, transform_points
+from ros2_mos.core.residuals import (
+    free_space_image,
+    relative_pose,
+    residual_image,
+    transform_columns,
+    transform_points,
+)
 from ros2_mos.io.labels import IGNORE, to_moving_classes
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 
@@ -94,6 +100,8 @@ class CacheSpec:
     poses: str = "dataset"  # 'dataset' (poses.txt) or 'kiss_icp'
     with_points: bool = False
     pose_noise: tuple[float, float] = (0.0, 0.0)  # σ of the relative pose: translation (m), rotation (deg)
+    # Free-space images (ros2_mos.core.residuals.free_space_image) against the scans this many back.
+    free_space_offsets: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if self.poses not in ("dataset", "kiss_icp"):
@@ -104,8 +112,15 @@ class CacheSpec:
         if len(noise) != 2 or not all(math.isfinite(v) and 0.0 <= v <= 10.0 for v in noise):
             raise ConfigError(f"pose_noise must be two finite values in [0, 10] (m, deg), got {self.pose_noise}")
         object.__setattr__(self, "pose_noise", noise)
+        offsets = tuple(int(o) for o in self.free_space_offsets)
+        if any(not 1 <= o <= self.n_residual for o in offsets) or len(set(offsets)) != len(offsets):
+            raise ConfigError(f"free_space_offsets must be distinct values in 1..n_residual={self.n_residual}, "
+                              f"got {list(self.free_space_offsets)}")
+        object.__setattr__(self, "free_space_offsets", offsets)
 
     def serves(self, setup: InputSetup) -> bool:
+        if setup.free_space and not set(setup.offsets) <= set(self.free_space_offsets):
+            return False
         return setup.history <= (self.n_residual if setup.kind == "residual" else self.n_frames)
 
 
@@ -120,12 +135,15 @@ def _file_stamps(paths: Iterable[Path]) -> list[tuple[str, int, int]]:
 def _cache_key(spec: CacheSpec, sequence: SemanticKittiSequence) -> str:
     """A hash of what the cache is computed from: spec, path, and every input file's name, size and mtime."""
     root = Path(sequence.root).resolve()
+    described = asdict(spec)
+    if not spec.free_space_offsets:  # caches built before free-space inputs existed keep their key
+        del described["free_space_offsets"]
     inputs = list(sequence.scan_files)
     for sub in ("labels",):
         if (root / sub).is_dir():
             inputs += sorted((root / sub).glob("*.label"))
     inputs += [root / name for name in ("poses.txt", "calib.txt", "times.txt") if (root / name).is_file()]
-    blob = json.dumps([CACHE_VERSION, asdict(spec), str(root), _file_stamps(inputs)], sort_keys=True)
+    blob = json.dumps([CACHE_VERSION, described, str(root), _file_stamps(inputs)], sort_keys=True)
     return hashlib.sha1(blob.encode()).hexdigest()[:12]
 
 
@@ -180,12 +198,15 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
     label_mm = np.load(out / "label.npy", mmap_mode="r+")
     res_mm = np.load(out / "residual.npy", mmap_mode="r+") if spec.n_residual else None
     past_mm = np.load(out / "past.npy", mmap_mode="r+") if spec.n_frames else None
+    free_mm = np.load(out / "free_space.npy", mmap_mode="r+") if spec.free_space_offsets else None
     sensor = spec.sensor
     history = max(spec.n_residual, spec.n_frames)
     buffer: list[_Scan] = [_read(sequence, j, poses) for j in range(max(0, start - history), start)][::-1]
+    own_range: dict[int, np.ndarray] = {}  # scan index -> its own range image (free-space inputs)
     for i in range(start, stop):
         scan = _read(sequence, i, poses)
         image = project(scan.points, scan.remission, sensor)
+        own_range[i] = image.range
         frame_mm[i] = _raw_frame(image).astype(np.float16)
         if scan.labels is not None:
             classes = to_moving_classes(scan.labels)
@@ -197,13 +218,23 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
         if res_mm is not None:
             # residual_images() of the core, unrolled for the per-pair pose noise.
             res = np.zeros((spec.n_residual, sensor.height, sensor.width), np.float32)
+            free = np.zeros((len(spec.free_space_offsets), sensor.height, sensor.width), np.float32)
             for j, s in enumerate(buffer[: spec.n_residual]):
                 rng = np.random.default_rng((i, j + 1, spec.n_residual))
                 moved = perturb_pose(relative_pose(scan.pose, s.pose), *spec.pose_noise, rng)
                 x, y, z = transform_columns(s.points, moved)
                 past_range = project_range_columns(x, y, z, sensor)
                 res[j] = residual_image(image.range, past_range, spec.residual, signed=True)
+                if j + 1 in spec.free_space_offsets:  # the same noisy pose, the other way round
+                    if i - j - 1 not in own_range:
+                        own_range[i - j - 1] = project_range_columns(*transform_columns(s.points, np.eye(4)), sensor)
+                    free[spec.free_space_offsets.index(j + 1)] = free_space_image(
+                        image.xyz, image.mask, own_range[i - j - 1], np.linalg.inv(moved), sensor, spec.residual)
             res_mm[i] = res.astype(np.float16)
+            if free_mm is not None:
+                free_mm[i] = free.astype(np.float16)
+            for k in [k for k in own_range if k <= i - spec.n_residual]:
+                del own_range[k]
         if past_mm is not None:
             stack = np.zeros((5 * spec.n_frames, sensor.height, sensor.width), np.float32)
             for j, s in enumerate(buffer[: spec.n_frames]):
@@ -224,7 +255,7 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
             )
         buffer.insert(0, scan)
         del buffer[history:]
-    for mm in (frame_mm, label_mm, res_mm, past_mm):
+    for mm in (frame_mm, label_mm, res_mm, past_mm, free_mm):
         if mm is not None:
             mm.flush()
     return stop - start
@@ -256,6 +287,8 @@ class SequenceCache:
         self.label = np.load(directory / "label.npy", mmap_mode="r")
         self.residual = np.load(directory / "residual.npy", mmap_mode="r") if spec.n_residual else None
         self.past = np.load(directory / "past.npy", mmap_mode="r") if spec.n_frames else None
+        self.free_space = (np.load(directory / "free_space.npy", mmap_mode="r") if spec.free_space_offsets
+                           else None)
         self.name = json.loads((directory / "info.json").read_text())["sequence"]
 
     def __len__(self) -> int:
@@ -297,6 +330,9 @@ class SequenceCache:
             np.lib.format.open_memmap(directory / "residual.npy", "w+", np.float16, (s, spec.n_residual, h, w)).flush()
         if spec.n_frames:
             np.lib.format.open_memmap(directory / "past.npy", "w+", np.float16, (s, 5 * spec.n_frames, h, w)).flush()
+        if spec.free_space_offsets:
+            np.lib.format.open_memmap(directory / "free_space.npy", "w+", np.float16,
+                                      (s, len(spec.free_space_offsets), h, w)).flush()
         if progress:
             progress(f"caching sequence {sequence.name} ({s} scans) into {directory}")
         poses = _sequence_poses(sequence, spec.poses, spec.sensor)
@@ -402,6 +438,11 @@ class MosDataset(Dataset):
             past_channels = (
                 read(cache.residual[i, channels], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
             )
+            if self.setup.free_space:
+                if cache.free_space is None:
+                    raise DatasetError(f"{cache.directory}: cached without free-space images")
+                free = [cache.spec.free_space_offsets.index(o) for o in self.setup.offsets]
+                past_channels = np.concatenate([past_channels, read(cache.free_space[i, free], np.float32)])
         else:
             past_channels = (read(cache.past[i, : 5 * n], np.float32) if n
                              else np.zeros((0,) + current.shape[1:], np.float32))

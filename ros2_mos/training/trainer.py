@@ -18,7 +18,7 @@ import math
 import os
 import random
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -62,6 +62,7 @@ class TrainConfig:
     n_past: int = 3
     past_offsets: list[int] = field(default_factory=list)  # empty: 1..n_past
     signed_residuals: bool = False
+    free_space: bool = False  # + free-space images at the same offsets (ros2_mos.core.residuals.free_space_image)
     image_channels: list[str] = field(default_factory=lambda: ["range", "x", "y", "z", "remission"])
     pose_noise: list[float] = field(default_factory=lambda: [0.0, 0.0])  # training inputs: σ_t (m), σ_r (deg)
     sensor: str | dict[str, Any] = "hdl64"
@@ -98,8 +99,9 @@ class TrainConfig:
     seed: int = 0
     max_minutes: float | None = None
     fit_statistics: bool = True
-    # Fine-tuning: start from this checkpoint's weights and normalisation (same network and input; a new
-    # schedule from epoch 0). Ignored once out_dir/last.pt exists (the run then resumes as usual).
+    # Fine-tuning: start from this checkpoint's weights and normalisation (same network and input, or the same
+    # input without free_space: the new input channels then start with zero weights; a new schedule from
+    # epoch 0). Ignored once out_dir/last.pt exists (the run then resumes as usual).
     init_from: str | None = None
     # Read by tools/train_models.py when it simulates the sequences (ros2_mos.sim.presets.randomized:
     # large, lumpy trees; beams off the nominal grid); not by training.
@@ -141,7 +143,7 @@ class TrainConfig:
     @property
     def setup(self) -> InputSetup:
         return InputSetup(self.input_kind, self.n_past, tuple(self.past_offsets), self.signed_residuals,
-                          tuple(self.image_channels))
+                          tuple(self.image_channels), self.free_space)
 
     @property
     def sensor_config(self) -> SensorConfig:
@@ -159,6 +161,7 @@ class TrainConfig:
             poses=self.poses,
             pose_noise=((float(self.pose_noise[0]), float(self.pose_noise[1])) if len(self.pose_noise) == 2
                         else (-1.0, -1.0)),
+            free_space_offsets=self.setup.offsets if self.free_space else (),
         )
 
     @classmethod
@@ -255,6 +258,25 @@ def evaluate_pixels(model: nn.Module, dataset: MosDataset, loss_fn: MosLoss | No
     return score.iou, float(np.mean(losses)) if losses else float("nan")
 
 
+def widen_input(weights: Mapping[str, torch.Tensor], target: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """``weights`` fitted to ``target``'s shapes where a layer reads more input channels there.
+
+    A weight of shape (out, c, ...) whose target is (out, c + k, ...) gets zero weights for the k
+    added channels (appended last), so the widened network computes exactly what the old one did
+    until training moves them. Other shape differences are left for ``load_state_dict`` to report.
+    """
+    out = {}
+    for name, value in weights.items():
+        goal = target.get(name)
+        if (goal is not None and value.ndim >= 2 and goal.ndim == value.ndim and goal.shape[1] > value.shape[1]
+                and goal.shape[0] == value.shape[0] and goal.shape[2:] == value.shape[2:]):
+            extra = torch.zeros((value.shape[0], goal.shape[1] - value.shape[1]) + tuple(value.shape[2:]),
+                                dtype=value.dtype)
+            value = torch.cat([value, extra], dim=1)
+        out[name] = value
+    return out
+
+
 class Trainer:
     """Trains one configuration; ``fit()`` resumes from ``out_dir/last.pt`` when it exists."""
 
@@ -312,7 +334,10 @@ class Trainer:
         self.best_iou = -1.0
         self.history: list[EpochResult] = []
         if self._init_state is not None:
-            self._raw_model().load_state_dict(self._init_state["model"])
+            weights = self._init_state["model"]
+            if self._init_state.get("widen"):
+                weights = widen_input(weights, self._raw_model().state_dict())
+            self._raw_model().load_state_dict(weights)
             self.log(f"fine-tuning from {self.config.init_from} (its epoch {int(self._init_state['epoch']) + 1})")
         self._maybe_resume()
 
@@ -322,10 +347,14 @@ class Trainer:
             return None
         path = Path(self.config.init_from)
         state = load_checkpoint(path)
-        if state.get("network") != self.config.network or state.get("input") != asdict(self.config.setup):
+        setup = self.config.setup
+        trained = dict(state.get("input") or {})
+        trained.setdefault("free_space", False)
+        widen = setup.free_space and trained == asdict(replace(setup, free_space=False))
+        if state.get("network") != self.config.network or (trained != asdict(setup) and not widen):
             raise ConfigError(f"init_from {path}: trained as {state.get('network')} {state.get('input')}, not "
-                              f"{self.config.network} {asdict(self.config.setup)}")
-        return state
+                              f"{self.config.network} {asdict(setup)}")
+        return dict(state, widen=widen)
 
     def _statistics(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         if self._init_state is not None:  # the weights expect their own normalisation
