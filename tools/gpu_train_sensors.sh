@@ -9,7 +9,7 @@
 #    of every sensor, seed 300 (neither the CPU recipe's seed 100 nor the evaluation suite's seeds), one
 #    sensor after another with every core.
 # 2. Starts one training process per run: each sensor's model fine-tuned from its starting checkpoint
-#    (dataset poses + pose noise, crops of 256 columns), and for the VLP-16 also a 2x wider FastMOS from
+#    (dataset poses + pose noise, its config's crop width), and for the VLP-16 also a 2x wider FastMOS from
 #    scratch (its 16 x 1024 image leaves the CPU budget room for it). Each run builds its input cache with
 #    4 workers and then trains with 3 loader workers.
 # 3. Stops every run DEADLINE seconds after the start (a run keeps best.pt and last.pt of its last whole
@@ -46,9 +46,14 @@ for p in b t e; do
     for i in $(seq 0 $((per_preset - 1))); do train="$train,$p$(printf %02d "$i")"; done
 done
 train="[${train#,}]"
-config_of() { case $1 in vlp16) echo fastmos_vlp16;; vlp32c) echo fastmos_vlp32c;; os1-64) echo fastmos_os164;;
-              os1-128) echo fastmos_os1128;; hdl64) echo fastmos_beams;; *) echo "unknown sensor $1" >&2; return 1;; esac; }
-init_of() { case $1 in os1-128) echo checkpoints/fastmos_os1128_best.pt;; *) echo checkpoints/fastmos_beams_last.pt;; esac; }
+# Each sensor's latest CPU recipe and the checkpoint its shipped model came from (benchmarks/experiments.md).
+config_of() { case $1 in vlp16) echo fastmos_vlp16_more;; vlp32c) echo fastmos_vlp32c_more;; os1-64) echo fastmos_os164;;
+              os1-128) echo fastmos_os1128_stage3;; hdl64) echo fastmos_beams;;
+              *) echo "unknown sensor $1" >&2; return 1;; esac; }
+init_of() { case $1 in vlp16) echo checkpoints/fastmos_vlp16_more_best.pt;;
+                       vlp32c) echo checkpoints/fastmos_vlp32c_more_best.pt;;
+                       os1-128) echo checkpoints/fastmos_os1128_stage3_best.pt;;
+                       *) echo checkpoints/fastmos_beams_last.pt;; esac; }
 work=${WORK:-/dev/shm/ros2_mos}
 mkdir -p "$work" || exit 1
 common="train_sequences=$train valid_sequences=[bv0,tv0,ev0] poses=dataset valid_stride=2 workers=3 \
