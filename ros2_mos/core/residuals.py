@@ -132,18 +132,28 @@ def free_space_image(
     ``to_past`` the 4x4 transform from the current scan's frame into the past scan's. A pixel is 0
     where its point leaves the past image or either range lies outside the residual window.
     """
-    out = np.zeros(current_mask.shape, dtype=np.float32)
-    rows, cols = np.nonzero(current_mask)
-    if len(rows) == 0:
-        return out
-    x, y, z = transform_columns(np.asarray(current_xyz[rows, cols], np.float32), to_past)
-    pixels = pixel_index_columns(x, y, z, sensor)
-    seen = past_range[pixels.v, pixels.u]
-    here = pixels.range
-    lo, hi = config.min_range, config.max_range
-    valid = pixels.in_image & (here > lo) & (here < hi) & (seen > lo) & (seen < hi)
-    out[rows[valid], cols[valid]] = (seen[valid] - here[valid]) / here[valid]
-    return out
+    occupied = np.flatnonzero(current_mask)
+    points = current_xyz.reshape(-1, 3)[occupied]
+    return _free_space(points, occupied, current_mask.shape, past_range, to_past, sensor, config)
+
+
+def _free_space(points: np.ndarray, occupied: np.ndarray, shape: tuple[int, ...], past_range: np.ndarray,
+                to_past: np.ndarray, sensor: SensorConfig, config: ResidualConfig) -> np.ndarray:
+    """:func:`free_space_image` of the (M, 3) points at the flat pixels ``occupied`` of an image of ``shape``."""
+    out = np.zeros(int(np.prod(shape)), dtype=np.float32)
+    if len(points):
+        x, y, z = transform_columns(points, to_past)
+        pixels = pixel_index_columns(x, y, z, sensor)
+        flat = pixels.v * np.int32(sensor.width)
+        flat += pixels.u
+        seen = past_range.reshape(-1)[flat]
+        here = pixels.range
+        lo, hi = np.float32(config.min_range), np.float32(config.max_range)
+        valid = pixels.in_image & (here > lo) & (here < hi) & (seen > lo) & (seen < hi)
+        seen -= here
+        seen /= here
+        out[occupied[valid]] = seen[valid]
+    return out.reshape(shape)
 
 
 def free_space_images(
@@ -162,10 +172,14 @@ def free_space_images(
     """
     out = np.zeros((len(offsets),) + current_mask.shape, dtype=np.float32)
     chosen = [past_scans[o - 1] for o in offsets if o <= len(past_scans)]
+    if not chosen:
+        return out
+    occupied = np.flatnonzero(current_mask)
+    points = current_xyz.reshape(-1, 3)[occupied]
 
     def one(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        return free_space_image(current_xyz, current_mask, scan[0], relative_pose(scan[1], current_pose), sensor,
-                                config)
+        return _free_space(points, occupied, current_mask.shape, scan[0], relative_pose(scan[1], current_pose),
+                           sensor, config)
 
     for j, image in enumerate(map_fn(one, chosen)):
         out[j] = image
