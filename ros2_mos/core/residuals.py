@@ -22,12 +22,14 @@ past scan saw something closer (the point was hidden then: no evidence).
 
 from __future__ import annotations
 
-from typing import Callable, Iterable, Iterator, Sequence
+from typing import Callable, Iterable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
 from ros2_mos.core.config import ResidualConfig, SensorConfig
 from ros2_mos.core.projection import check_points, pixel_index_columns, project_range_columns
+
+T = TypeVar("T")
 
 
 def transform_points(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
@@ -56,6 +58,11 @@ def transform_columns(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
 def relative_pose(current_pose: np.ndarray, past_pose: np.ndarray) -> np.ndarray:
     """The transform taking points of the past scan's frame into the current scan's frame."""
     return np.linalg.inv(current_pose) @ past_pose
+
+
+def scans_at_offsets(past_scans: Sequence[T], offsets: Sequence[int]) -> list[T]:
+    """The buffered scans ``offsets`` back (newest first, 1 = the previous scan) that the buffer holds yet."""
+    return [past_scans[o - 1] for o in offsets if o <= len(past_scans)]
 
 
 def residual_image(
@@ -106,7 +113,7 @@ def residual_images(
     offsets = tuple(offsets) if offsets is not None else tuple(range(1, n + 1))
     if len(offsets) != n:
         raise ValueError(f"{len(offsets)} offsets for {n} residual images")
-    chosen = [past_scans[o - 1] for o in offsets if o <= len(past_scans)]
+    chosen = scans_at_offsets(past_scans, offsets)
 
     def one(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         return residual_image(current_range, past_range_image(scan[0], scan[1], current_pose, sensor), config, signed)
@@ -171,7 +178,7 @@ def free_space_images(
     ``past_scans`` holds (the past scan's own range image, its world pose), newest first.
     """
     out = np.zeros((len(offsets),) + current_mask.shape, dtype=np.float32)
-    chosen = [past_scans[o - 1] for o in offsets if o <= len(past_scans)]
+    chosen = scans_at_offsets(past_scans, offsets)
     if not chosen:
         return out
     occupied = np.flatnonzero(current_mask)

@@ -18,7 +18,7 @@ import torch
 from ros2_mos.core.config import PostprocessConfig, ResidualConfig, SensorConfig
 from ros2_mos.core.errors import ConfigError
 from ros2_mos.core.projection import PixelIndex, RangeImage
-from ros2_mos.core.residuals import relative_pose
+from ros2_mos.core.residuals import relative_pose, scans_at_offsets
 
 _EMPTY_RANGE = 1e9
 
@@ -162,7 +162,7 @@ class TorchGeometry:
                   signed: bool = False) -> np.ndarray:
         """Like :func:`ros2_mos.core.residuals.residual_images`: residual k against ``past[offsets[k] - 1]``."""
         offsets = tuple(offsets) if offsets is not None else tuple(range(1, n + 1))
-        chosen = [past[o - 1] for o in offsets if o <= len(past)]
+        chosen = scans_at_offsets(past, offsets)
         live = {id(p) for p, _ in past}
         self._cache = {k: v for k, v in self._cache.items() if k in live}
         cur = torch.from_numpy(current_range).to(self.device)
@@ -173,7 +173,7 @@ class TorchGeometry:
                    offsets: tuple[int, ...], config: ResidualConfig) -> np.ndarray:
         """Like :func:`ros2_mos.core.residuals.free_space_images`: against ``past`` (own range image, pose)."""
         out = np.zeros((len(offsets),) + image.range.shape, np.float32)
-        chosen = [past[o - 1] for o in offsets if o <= len(past)]
+        chosen = scans_at_offsets(past, offsets)
         if not chosen:
             return out
         xyz = torch.from_numpy(np.ascontiguousarray(image.xyz)).to(self.device)

@@ -72,7 +72,14 @@ from torch.utils.data import Dataset
 from ros2_mos.core.config import ResidualConfig, SensorConfig
 from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.core.network_input import InputSetup, assemble_input
-from ros2_mos.core.projection import PixelIndex, RangeImage, finite_mask, project, project_range_columns
+from ros2_mos.core.projection import (
+    PixelIndex,
+    RangeImage,
+    finite_mask,
+    project,
+    project_range,
+    project_range_columns,
+)
 from ros2_mos.core.residuals import (
     free_space_image,
     relative_pose,
@@ -227,7 +234,7 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
                 res[j] = residual_image(image.range, past_range, spec.residual, signed=True)
                 if j + 1 in spec.free_space_offsets:  # the same noisy pose, the other way round
                     if i - j - 1 not in own_range:
-                        own_range[i - j - 1] = project_range_columns(*transform_columns(s.points, np.eye(4)), sensor)
+                        own_range[i - j - 1] = project_range(s.points, sensor)
                     free[spec.free_space_offsets.index(j + 1)] = free_space_image(
                         image.xyz, image.mask, own_range[i - j - 1], np.linalg.inv(moved), sensor, spec.residual)
             res_mm[i] = res.astype(np.float16)
