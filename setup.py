@@ -2,7 +2,7 @@
 
 from glob import glob
 
-from setuptools import find_packages, setup
+from setuptools import Extension, find_packages, setup
 
 PACKAGE = "ros2_mos"
 
@@ -31,7 +31,12 @@ setup(
         "train": ["torch==2.13.0", "onnxscript"],
         "apps": ["trimesh", "pillow"],
     },
-    zip_safe=True,
+    # Plain C (no Python or numpy headers), loaded with ctypes by ros2_mos/core/kernels.py; the numpy code
+    # runs where it is not built. -ffp-contract=off keeps its float32 arithmetic bit-identical to numpy's.
+    ext_modules=[Extension(f"{PACKAGE}.core._kernels", sources=[f"{PACKAGE}/core/_kernels.c"],
+                           extra_compile_args=["-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math"],
+                           optional=True)],
+    zip_safe=False,
     maintainer="ros2_mos developers",
     maintainer_email="dev@ros2-mos.invalid",
     description="Online moving object segmentation for rotating 3D LiDAR (ROS 2 Jazzy).",

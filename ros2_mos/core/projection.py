@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ros2_mos.core import kernels
 from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ScanError
 
@@ -96,6 +97,8 @@ def azimuth(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def pixel_index(points: np.ndarray, sensor: SensorConfig) -> PixelIndex:
     """Compute each point's pixel; points must be finite with positive range (see ``finite_mask``)."""
     pts = check_points(points)
+    if kernels.enabled():
+        return PixelIndex(*kernels.project(pts, sensor)[0])
     # Contiguous float32 columns: every ufunc below then runs on SIMD-friendly unit strides.
     x, y, z = np.array(pts.T, dtype=np.float32, order="C")
     return pixel_index_columns(x, y, z, sensor)
@@ -103,6 +106,8 @@ def pixel_index(points: np.ndarray, sensor: SensorConfig) -> PixelIndex:
 
 def pixel_index_columns(x: np.ndarray, y: np.ndarray, z: np.ndarray, sensor: SensorConfig) -> PixelIndex:
     """:func:`pixel_index` of points given as three contiguous float32 coordinate arrays."""
+    if kernels.enabled():
+        return PixelIndex(*kernels.project((x, y, z), sensor)[0])
     rho = x * x
     rho += y * y
     r = z * z
@@ -162,9 +167,17 @@ def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> 
     rem = np.asarray(remission, dtype=np.float32).reshape(-1)
     if len(rem) != len(pts):
         raise ScanError(f"remission has {len(rem)} values for {len(pts)} points")
-    pixels = pixel_index(pts, sensor)
     h, w = sensor.height, sensor.width
-    rng, pix, idx = closest_per_pixel(pixels, w, h)
+    if kernels.enabled():  # pixels and closest points in one pass
+        columns, best, winner = kernels.project(pts, sensor, closest=True)
+        pixels = PixelIndex(*columns)
+        pix = np.flatnonzero(winner >= 0)
+        idx = winner[pix]
+        best[winner < 0] = 0.0
+        rng = best
+    else:
+        pixels = pixel_index(pts, sensor)
+        rng, pix, idx = closest_per_pixel(pixels, w, h)
     point_index = np.full(h * w, -1, dtype=np.int32)
     point_index[pix] = idx
     # One flat scatter per coordinate: a scatter of (n, 3) rows is 10x slower than three of n values.
@@ -184,12 +197,20 @@ def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> 
 
 def project_range(points: np.ndarray, sensor: SensorConfig) -> np.ndarray:
     """Only the (H, W) range image (0 where empty): what a past scan needs for its residual."""
+    if kernels.enabled():  # the (N, 3) rows as they are, no transposed copy
+        best = kernels.project(check_points(points), sensor, pixels=False, closest=True)[1]
+        best[np.isinf(best)] = 0.0
+        return best.reshape(sensor.height, sensor.width)
     x, y, z = np.array(check_points(points).T, dtype=np.float32, order="C")
     return project_range_columns(x, y, z, sensor)
 
 
 def project_range_columns(x: np.ndarray, y: np.ndarray, z: np.ndarray, sensor: SensorConfig) -> np.ndarray:
     """:func:`project_range` of points given as three contiguous float32 coordinate arrays."""
+    if kernels.enabled():
+        best = kernels.project((x, y, z), sensor, pixels=False, closest=True)[1]
+        best[np.isinf(best)] = 0.0
+        return best.reshape(sensor.height, sensor.width)
     pixels = pixel_index_columns(x, y, z, sensor)
     candidates, pix = _flat_pixels(pixels, sensor.width)
     best = np.full(sensor.height * sensor.width, np.inf, dtype=np.float32)

@@ -26,6 +26,7 @@ from typing import Callable, Iterable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
+from ros2_mos.core import kernels
 from ros2_mos.core.config import ResidualConfig, SensorConfig
 from ros2_mos.core.projection import check_points, pixel_index_columns, project_range_columns
 
@@ -70,6 +71,8 @@ def residual_image(
 ) -> np.ndarray:
     """|r_0 − r_j| / r_0 (or signed, (r_j − r_0) / r_0) where both ranges lie inside the window, 0 elsewhere."""
     lo, hi = config.min_range, config.max_range
+    if kernels.enabled():
+        return kernels.residual(current_range, past_range, lo, hi, signed)
     valid = (current_range > lo) & (current_range < hi) & (past_range > lo) & (past_range < hi)
     out = np.zeros_like(current_range, dtype=np.float32)
     r0 = current_range[valid]
@@ -82,6 +85,11 @@ def past_range_image(
     past_points: np.ndarray, past_pose: np.ndarray, current_pose: np.ndarray, sensor: SensorConfig
 ) -> np.ndarray:
     """The range image of a past scan as seen from the current scan's pose."""
+    if kernels.enabled():  # moved and projected in one pass
+        best = kernels.project(check_points(past_points, "past points"), sensor,
+                               relative_pose(current_pose, past_pose), pixels=False, closest=True)[1]
+        best[np.isinf(best)] = 0.0
+        return best.reshape(sensor.height, sensor.width)
     x, y, z = transform_columns(check_points(past_points, "past points"), relative_pose(current_pose, past_pose))
     return project_range_columns(x, y, z, sensor)
 
@@ -140,8 +148,16 @@ def free_space_image(
     where its point leaves the past image or either range lies outside the residual window.
     """
     occupied = np.flatnonzero(current_mask)
+    if kernels.enabled():
+        return kernels.free_space(_planes(current_xyz), occupied, to_past, sensor, past_range, config.min_range,
+                                  config.max_range).reshape(current_mask.shape)
     points = current_xyz.reshape(-1, 3)[occupied]
     return _free_space(points, occupied, current_mask.shape, past_range, to_past, sensor, config)
+
+
+def _planes(xyz: np.ndarray) -> np.ndarray:
+    """(3, H*W) x, y and z planes of an (H, W, 3) image: a view when the image is one (``projection.project``)."""
+    return np.moveaxis(xyz, -1, 0).reshape(3, -1)
 
 
 def _free_space(points: np.ndarray, occupied: np.ndarray, shape: tuple[int, ...], past_range: np.ndarray,
@@ -182,6 +198,16 @@ def free_space_images(
     if not chosen:
         return out
     occupied = np.flatnonzero(current_mask)
+    if kernels.enabled():
+        planes = np.ascontiguousarray(_planes(current_xyz), dtype=np.float32)
+
+        def fused(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+            return kernels.free_space(planes, occupied, relative_pose(scan[1], current_pose), sensor, scan[0],
+                                      config.min_range, config.max_range).reshape(current_mask.shape)
+
+        for j, image in enumerate(map_fn(fused, chosen)):
+            out[j] = image
+        return out
     points = current_xyz.reshape(-1, 3)[occupied]
 
     def one(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:

@@ -23,6 +23,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from ros2_mos.core import kernels
 from ros2_mos.core.errors import ConfigError, ModelError, MosError, ScanError
 from ros2_mos.io.pointcloud2 import fill_xyzi
 from ros2_mos.ros import messages as m
@@ -140,7 +141,8 @@ class MosNode(Node):
         self.get_logger().info(
             f"ready in {time.perf_counter() - t0:.2f} s: model {p.model.path.name} ({p.model.metadata.network}, "
             f"{p.setup.label}, threshold {p.threshold:.2f}, {p.model.provider}), sensor {p.sensor.name} "
-            f"{p.sensor.height}x{p.sensor.width}; {self._sub.topic_name} "
+            f"{p.sensor.height}x{p.sensor.width}, geometry {p.config.geometry_backend}"
+            f"{f' ({kernels.status()})' if p.config.geometry_backend == 'numpy' else ''}; {self._sub.topic_name} "
             f"({'reliable' if s.reliable else 'best effort'}) -> {outputs}")
         # Discovery takes a moment: look for a namesake once it had time to be seen.
         self._namesake_timer = self.create_timer(2.0, self._warn_about_namesakes)

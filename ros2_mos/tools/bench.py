@@ -67,6 +67,7 @@ def peak_rss_mb() -> float:
 
 def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, threads: int,
                     geometry: str = "numpy", sensor: str | None = None) -> BenchResult:
+    from ros2_mos.core import kernels
     from ros2_mos.core.pipeline import MosPipeline
     from ros2_mos.io.bags import iter_pointclouds
     from ros2_mos.ros.messages import MessageTypes
@@ -90,7 +91,8 @@ def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, thread
     meta = pipeline.model.metadata
     label = f"{meta.network} {meta.input.label} ({Path(pipeline.model.path).name})"
     notes = (f"{pipeline.sensor.height}x{pipeline.sensor.width}, {pipeline.model.provider}, ORT threads "
-             f"{threads or 'default'}, geometry {geometry}")
+             f"{threads or 'default'}, geometry {geometry}"
+             + (f" ({kernels.status()})" if geometry == "numpy" else ""))
     return summarise(label, timings, notes)
 
 

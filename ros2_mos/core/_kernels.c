@@ -1,0 +1,221 @@
+/* Fused per-point geometry kernels of ros2_mos (loaded with ctypes by ros2_mos/core/kernels.py).
+ *
+ * Each kernel does in one pass over the points what ros2_mos/core/projection.py and residuals.py do in
+ * numpy as ~80 whole-array operations: rigid transform, spherical projection to a pixel, closest range
+ * per pixel, residual or free-space value. The arithmetic is the numpy code's, in the same float32
+ * operations and the same order (build with -ffp-contract=off: no fused multiply-adds), so that the
+ * results are bit-identical; test/test_kernels.py checks that against the numpy functions.
+ *
+ * Plain C with no Python or numpy headers: coordinates come as three float32 pointers with a common
+ * stride (3 for (N, 3) rows, 1 for planes), so no copy is made to call a kernel.
+ */
+#include <math.h>
+#include <stdint.h>
+
+/* On x86-64 with GCC, the per-point arithmetic is also built for AVX2 and picked at load time (the same
+ * operations, so the same results); elsewhere the compiler's baseline vectors serve. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
+#define MOS_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define MOS_CLONES
+#endif
+
+/* Bumped whenever a signature changes: the loader refuses a stale build. */
+#define MOS_KERNELS_ABI 1
+
+int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
+
+/* The projection's float32 constants, computed once in Python (projection.py's expressions). */
+typedef struct {
+    int32_t width;
+    int32_t height;
+    float u_scale;  /* -0.5 w / pi */
+    float u_shift;  /* 0.5 w */
+    float v_scale;  /* -h / fov */
+    float v_shift;  /* h (1 + fov_down / fov) */
+    float min_range;
+    float max_range;
+} MosSensor;
+
+/* projection.py's _ATAN_COEFFS as float32, lowest order first. */
+static const float ATAN_C[9] = {
+    0.9999998863901668f, -0.333325970473658f, 0.19985906928451264f, -0.14161229789124125f,
+    0.10498947063988592f, -0.07234857807645328f, 0.0397812161296372f, -0.014401347962729183f,
+    0.0024567211130326477f,
+};
+
+/* projection.azimuth for one value: atan2(y, x) by octant reduction and the polynomial. Branch-free
+ * (selects, not jumps), so that the loops below vectorise. */
+static inline float azimuth(float x, float y) {
+    float ax = fabsf(x), ay = fabsf(y);
+    float big = ax > ay ? ax : ay;
+    float small = ax < ay ? ax : ay;
+    float t = big > 0.0f ? small / big : small;
+    float t2 = t * t;
+    float angle = ATAN_C[8];
+    for (int k = 7; k >= 0; --k) {
+        angle *= t2;
+        angle += ATAN_C[k];
+    }
+    angle *= t;
+    angle = ay > ax ? (float)(M_PI / 2) - angle : angle;
+    angle = x < 0.0f ? (float)M_PI - angle : angle;
+    return copysignf(angle, y);
+}
+
+/* Points per block: the transformed coordinates and pixels of a block stay in the L1 cache. */
+#define BLOCK 256
+
+/* residuals.transform_columns for a block: t is a row-major 3x4 float32 [R | t], or NULL (identity). */
+static inline __attribute__((always_inline)) void transform_block(
+    const float *restrict x, const float *restrict y, const float *restrict z, const int64_t stride, int64_t m,
+    const float *restrict t, float *restrict ox, float *restrict oy, float *restrict oz) {
+    if (!t) {
+        for (int64_t i = 0; i < m; ++i) {
+            ox[i] = x[i * stride];
+            oy[i] = y[i * stride];
+            oz[i] = z[i * stride];
+        }
+        return;
+    }
+    const float t00 = t[0], t01 = t[1], t02 = t[2], t03 = t[3];
+    const float t10 = t[4], t11 = t[5], t12 = t[6], t13 = t[7];
+    const float t20 = t[8], t21 = t[9], t22 = t[10], t23 = t[11];
+    for (int64_t i = 0; i < m; ++i) {
+        const float a = x[i * stride], b = y[i * stride], c = z[i * stride];
+        float o = a * t00;
+        o += b * t01;
+        o += c * t02;
+        o += t03;
+        ox[i] = o;
+        o = a * t10;
+        o += b * t11;
+        o += c * t12;
+        o += t13;
+        oy[i] = o;
+        o = a * t20;
+        o += b * t21;
+        o += c * t22;
+        o += t23;
+        oz[i] = o;
+    }
+}
+
+/* projection.pixel_index_columns for a block: column, row, range and whether the point lies inside. */
+MOS_CLONES static void pixel_block(const float *restrict x, const float *restrict y, const float *restrict z, int64_t m,
+                        const MosSensor *s, int32_t *restrict u, int32_t *restrict v, float *restrict range,
+                        uint8_t *restrict inside) {
+    const float u_scale = s->u_scale, u_shift = s->u_shift, v_scale = s->v_scale, v_shift = s->v_shift;
+    const float height = (float)s->height, u_max = (float)(s->width - 1), v_max = (float)(s->height - 1);
+    const float min_range = s->min_range, max_range = s->max_range;
+    for (int64_t i = 0; i < m; ++i) {
+        float rho = x[i] * x[i];
+        rho += y[i] * y[i];
+        float r = z[i] * z[i];
+        r += rho;
+        rho = sqrtf(rho);
+        r = sqrtf(r);
+        float v_f = azimuth(rho, z[i]);
+        float u_f = azimuth(x[i], y[i]);
+        u_f *= u_scale;
+        u_f += u_shift;
+        v_f *= v_scale;
+        v_f += v_shift;
+        inside[i] = (uint8_t)((v_f >= 0.0f) & (v_f < height) & (r > min_range) & (r < max_range));
+        /* Clamping before the truncating cast, as np.clip(...).astype(np.int32). */
+        float uc = u_f < 0.0f ? 0.0f : u_f;
+        uc = uc > u_max ? u_max : uc;
+        float vc = v_f < 0.0f ? 0.0f : v_f;
+        vc = vc > v_max ? v_max : vc;
+        u[i] = (int32_t)uc;
+        v[i] = (int32_t)vc;
+        range[i] = r;
+    }
+}
+
+static inline __attribute__((always_inline)) void project_strided(
+    const float *x, const float *y, const float *z, const int64_t stride, int64_t n, const float *t,
+    const MosSensor *s, int32_t *u, int32_t *v, float *range, uint8_t *in_image, float *best, int32_t *winner) {
+    float bx[BLOCK], by[BLOCK], bz[BLOCK], br[BLOCK];
+    int32_t bu[BLOCK], bv[BLOCK];
+    uint8_t bi[BLOCK];
+    for (int64_t start = 0; start < n; start += BLOCK) {
+        const int64_t m = n - start < BLOCK ? n - start : BLOCK;
+        transform_block(x + start * stride, y + start * stride, z + start * stride, stride, m, t, bx, by, bz);
+        int32_t *pu = u ? u + start : bu, *pv = v ? v + start : bv;
+        float *pr = range ? range + start : br;
+        uint8_t *pi = in_image ? in_image + start : bi;
+        pixel_block(bx, by, bz, m, s, pu, pv, pr, pi);
+        if (!best) continue;
+        for (int64_t i = 0; i < m; ++i) {
+            if (!pi[i]) continue;
+            const int64_t p = (int64_t)pv[i] * s->width + pu[i];
+            if (pr[i] <= best[p]) {
+                best[p] = pr[i];
+                if (winner) winner[p] = (int32_t)(start + i);
+            }
+        }
+    }
+}
+
+/* Pixels of n points (transformed by t first, when given): pixel_index_columns(transform_columns(...)).
+ * u, v, range, in_image may each be NULL. With best (H*W, filled with +inf) the closest range per pixel is
+ * kept there, and with winner (H*W, filled with -1) the index of its point (the last one among equal
+ * ranges): projection.closest_per_pixel. */
+void mos_project(const float *x, const float *y, const float *z, int64_t stride, int64_t n, const float *t,
+                 const MosSensor *s, int32_t *u, int32_t *v, float *range, uint8_t *in_image, float *best,
+                 int32_t *winner) {
+    if (stride == 3)
+        project_strided(x, y, z, 3, n, t, s, u, v, range, in_image, best, winner);
+    else if (stride == 1)
+        project_strided(x, y, z, 1, n, t, s, u, v, range, in_image, best, winner);
+    else
+        project_strided(x, y, z, stride, n, t, s, u, v, range, in_image, best, winner);
+}
+
+/* residuals.free_space_image over the flat pixels `occupied` (m of them) of an image whose points lie in
+ * the planes x, y, z (H*W each): each point moved by t into the past scan's frame and compared with the
+ * range the past scan measured there, (r_j(q) - |q|) / |q|, where both lie in (lo, hi); out (H*W) must be
+ * zero-filled and keeps 0 elsewhere. */
+void mos_free_space(const float *x, const float *y, const float *z, const int64_t *occupied, int64_t m,
+                    const float *t, const MosSensor *s, const float *past_range, float lo, float hi, float *out) {
+    float gx[BLOCK], gy[BLOCK], gz[BLOCK], bx[BLOCK], by[BLOCK], bz[BLOCK], here[BLOCK];
+    int32_t bu[BLOCK], bv[BLOCK];
+    uint8_t inside[BLOCK];
+    for (int64_t start = 0; start < m; start += BLOCK) {
+        const int64_t k = m - start < BLOCK ? m - start : BLOCK;
+        for (int64_t i = 0; i < k; ++i) {
+            const int64_t p = occupied[start + i];
+            gx[i] = x[p];
+            gy[i] = y[p];
+            gz[i] = z[p];
+        }
+        transform_block(gx, gy, gz, 1, k, t, bx, by, bz);
+        pixel_block(bx, by, bz, k, s, bu, bv, here, inside);
+        for (int64_t i = 0; i < k; ++i) {
+            if (!inside[i]) continue;
+            float seen = past_range[(int64_t)bv[i] * s->width + bu[i]];
+            const float r = here[i];
+            if (r > lo && r < hi && seen > lo && seen < hi) {
+                seen -= r;
+                seen /= r;
+                out[occupied[start + i]] = seen;
+            }
+        }
+    }
+}
+
+/* residuals.residual_image of a current range image (npix pixels) against a past one: (r_j - r_0) / r_0
+ * (its absolute value unless signed_), where both lie in (lo, hi); 0 elsewhere. */
+void mos_residual(const float *current, const float *past, int64_t npix, float lo, float hi, int32_t signed_,
+                  float *out) {
+    for (int64_t p = 0; p < npix; ++p) {
+        float r0 = current[p], rj = past[p];
+        float d = 0.0f;
+        if (r0 > lo && r0 < hi && rj > lo && rj < hi) {
+            d = (rj - r0) / r0;
+            if (!signed_) d = fabsf(d);
+        }
+        out[p] = d;
+    }
+}

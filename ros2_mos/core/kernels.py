@@ -1,0 +1,213 @@
+"""The compiled per-point geometry kernels (``_kernels.c``), loaded with ctypes.
+
+``projection.py`` and ``residuals.py`` are written in numpy, ~80 whole-array operations per projection of
+a scan. ``_kernels.c`` does the same float32 arithmetic, in the same order, in one pass per point: the
+results are bit-identical (``test/test_kernels.py``) and several times faster (README, Speed). The
+extension is built by ``pip install`` (setup.py; it needs a C compiler). Where it is missing or stale, or
+with ``ROS2_MOS_KERNELS=0`` in the environment, :func:`enabled` is False and the numpy code runs instead;
+:func:`status` says which in one line (the node logs it, ``ros2-mos bench`` prints it).
+
+ctypes releases the GIL for the call, so kernels on several threads (the residual pool) run in parallel.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.machinery
+import os
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ros2_mos.core.config import SensorConfig
+
+#: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
+ABI = 1
+
+
+
+class _Sensor(ctypes.Structure):
+    """MosSensor of _kernels.c: the projection's float32 constants."""
+
+    _fields_ = [
+        ("width", ctypes.c_int32),
+        ("height", ctypes.c_int32),
+        ("u_scale", ctypes.c_float),
+        ("u_shift", ctypes.c_float),
+        ("v_scale", ctypes.c_float),
+        ("v_shift", ctypes.c_float),
+        ("min_range", ctypes.c_float),
+        ("max_range", ctypes.c_float),
+    ]
+
+
+def _library_path() -> Path | None:
+    here = Path(__file__).parent
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        path = here / f"_kernels{suffix}"
+        if path.is_file():
+            return path
+    return None
+
+
+def _load() -> tuple[ctypes.CDLL | None, str]:
+    """The library and a one-line status."""
+    if os.environ.get("ROS2_MOS_KERNELS", "1").strip() in ("0", "false", "no", "off"):
+        return None, "numpy (compiled kernels off: ROS2_MOS_KERNELS=0)"
+    path = _library_path()
+    if path is None:
+        return None, "numpy (compiled kernels not built: reinstall with a C compiler, `pip install -e .`)"
+    try:
+        lib = ctypes.CDLL(str(path))
+        abi = lib.mos_kernels_abi()
+    except (OSError, AttributeError) as err:
+        return None, f"numpy (compiled kernels unusable: {err})"
+    if abi != ABI:
+        return None, f"numpy (compiled kernels are stale: ABI {abi}, want {ABI}; reinstall, `pip install -e .`)"
+    vp = ctypes.c_void_p
+    lib.mos_project.restype = None
+    lib.mos_project.argtypes = [vp, vp, vp, ctypes.c_int64, ctypes.c_int64, vp, ctypes.POINTER(_Sensor),
+                                vp, vp, vp, vp, vp, vp]
+    lib.mos_free_space.restype = None
+    lib.mos_free_space.argtypes = [vp, vp, vp, vp, ctypes.c_int64, vp, ctypes.POINTER(_Sensor), vp,
+                                   ctypes.c_float, ctypes.c_float, vp]
+    lib.mos_residual.restype = None
+    lib.mos_residual.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_float, ctypes.c_float, ctypes.c_int32, vp]
+    return lib, f"compiled kernels ({path.name})"
+
+
+_LIB, _STATUS = _load()
+_forced_off = False
+
+
+def enabled() -> bool:
+    """Whether the compiled kernels are used (else the numpy code)."""
+    return _LIB is not None and not _forced_off
+
+
+def status() -> str:
+    """One line: which geometry code runs, and why not the compiled kernels where they are off."""
+    return "numpy (compiled kernels off for this run)" if _forced_off and _LIB is not None else _STATUS
+
+
+@contextmanager
+def disabled() -> Iterator[None]:
+    """Run the numpy code inside the block (tests compare both; benchmarks A/B them)."""
+    global _forced_off
+    before, _forced_off = _forced_off, True
+    try:
+        yield
+    finally:
+        _forced_off = before
+
+
+def _f32(value: float) -> float:
+    """``value`` rounded to float32 (as a Python float, which ctypes takes and converts back exactly)."""
+    return float(np.float32(value))
+
+
+def _sensor(sensor: SensorConfig) -> _Sensor:
+    """The constants exactly as ``projection.pixel_index_columns`` computes them (float32)."""
+    return _Sensor(
+        sensor.width,
+        sensor.height,
+        _f32(-0.5 * sensor.width / np.pi),
+        _f32(0.5 * sensor.width),
+        _f32(-sensor.height / sensor.fov),
+        _f32(sensor.height * (1.0 + sensor.fov_down / sensor.fov)),
+        _f32(sensor.min_range),
+        _f32(sensor.max_range),
+    )
+
+
+def _ptr(array: np.ndarray | None) -> int | None:
+    return None if array is None else array.ctypes.data
+
+
+def _transform(transform: np.ndarray | None) -> np.ndarray | None:
+    """A 4x4 rigid transform as the kernels take it: row-major 3x4 float32 (``transform_columns`` casts so)."""
+    if transform is None:
+        return None
+    return np.ascontiguousarray(np.asarray(transform, dtype=np.float64)[:3, :4], dtype=np.float32)
+
+
+#: Column, row, range and inside-the-image flag per point (``projection.PixelIndex``'s fields).
+Pixels = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _coordinates(points: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[list[np.ndarray], int, int]:
+    """The kernels' view of points: three pointers' arrays, their common stride in floats, and N.
+
+    (N, 3) rows are passed as they are (stride 3; copied only when not contiguous float32), three
+    coordinate columns as they are (stride 1).
+    """
+    if isinstance(points, tuple):
+        columns = [np.ascontiguousarray(c, dtype=np.float32) for c in points]
+        if not len(columns[0]) == len(columns[1]) == len(columns[2]):
+            raise ValueError("x, y and z have different lengths")
+        return columns, 1, len(columns[0])
+    rows = np.ascontiguousarray(points, dtype=np.float32)
+    if rows.ndim != 2 or rows.shape[1] != 3:
+        raise ValueError(f"points must be (N, 3), got {rows.shape}")
+    return [rows, rows[:, 1], rows[:, 2]], 3, len(rows)
+
+
+def project(points: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray], sensor: SensorConfig,
+            transform: np.ndarray | None = None, pixels: bool = True, closest: bool = False,
+            ) -> tuple[Pixels | None, np.ndarray | None, np.ndarray | None]:
+    """Project (N, 3) points, or three coordinate columns, moved by ``transform`` first when given, in one pass.
+
+    Returns ``(u, v, range, in_image)`` when ``pixels`` (else None), and when ``closest`` the (H*W,) closest
+    range per pixel (+inf where empty) and the index of that point (-1 where empty); else None, None.
+    """
+    coords, stride, n = _coordinates(points)
+    t = _transform(transform)
+    u = v = rng = inside = best = winner = None
+    if pixels:
+        u = np.empty(n, np.int32)
+        v = np.empty(n, np.int32)
+        rng = np.empty(n, np.float32)
+        inside = np.empty(n, np.bool_)
+    if closest:
+        best = np.full(sensor.height * sensor.width, np.inf, np.float32)
+        winner = np.full(sensor.height * sensor.width, -1, np.int32)
+    assert _LIB is not None
+    _LIB.mos_project(coords[0].ctypes.data, coords[1].ctypes.data, coords[2].ctypes.data, stride, n, _ptr(t),
+                     ctypes.byref(_sensor(sensor)), _ptr(u), _ptr(v), _ptr(rng), _ptr(inside), _ptr(best),
+                     _ptr(winner))
+    return ((u, v, rng, inside) if pixels else None), best, winner
+
+
+def free_space(planes: np.ndarray, occupied: np.ndarray, transform: np.ndarray, sensor: SensorConfig,
+               past_range: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """(H*W,) ``residuals.free_space_image``: ``planes`` (3, H*W) float32 holds the current points, ``occupied``
+    the flat ids of the pixels that hold one, ``past_range`` the past scan's own (H, W) range image."""
+    planes = np.ascontiguousarray(planes, dtype=np.float32)
+    occupied = np.ascontiguousarray(occupied, dtype=np.int64)
+    past = np.ascontiguousarray(past_range, dtype=np.float32)
+    npix = planes.shape[1]
+    if past.size != npix or npix != sensor.height * sensor.width:
+        raise ValueError(f"free space: {npix} pixels of points, {past.size} of past range, sensor "
+                         f"{sensor.height} x {sensor.width}")
+    out = np.zeros(npix, np.float32)
+    t = _transform(transform)
+    assert _LIB is not None
+    _LIB.mos_free_space(planes[0].ctypes.data, planes[1].ctypes.data, planes[2].ctypes.data, occupied.ctypes.data,
+                        len(occupied), t.ctypes.data, ctypes.byref(_sensor(sensor)), past.ctypes.data,
+                        _f32(lo), _f32(hi), out.ctypes.data)
+    return out
+
+
+def residual(current_range: np.ndarray, past_range: np.ndarray, lo: float, hi: float, signed: bool) -> np.ndarray:
+    """``residuals.residual_image`` of two range images of one shape."""
+    current = np.ascontiguousarray(current_range, dtype=np.float32)
+    past = np.ascontiguousarray(past_range, dtype=np.float32)
+    if current.shape != past.shape:
+        raise ValueError(f"residual of range images of shapes {current.shape} and {past.shape}")
+    out = np.empty_like(current)
+    assert _LIB is not None
+    _LIB.mos_residual(current.ctypes.data, past.ctypes.data, current.size, _f32(lo), _f32(hi),
+                      int(signed), out.ctypes.data)
+    return out

@@ -1,0 +1,133 @@
+"""The compiled geometry kernels give bit-identical results to the numpy code, and load (or not) cleanly.
+
+test_projection.py and test_residuals.py run their hand-computed cases on both; here dense random scans of
+every sensor preset, with the edge cases mixed in (points at the origin's axes, on the fov edges, outside
+the range limits, several points on one pixel, exact range ties), are compared array by array.
+"""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ros2_mos.core import kernels
+from ros2_mos.core.config import SENSOR_PRESETS, ResidualConfig, SensorConfig
+from ros2_mos.core.projection import pixel_index, pixel_index_columns, project, project_range
+from ros2_mos.core.residuals import free_space_image, free_space_images, past_range_image, residual_image
+
+WINDOW = ResidualConfig(2.0, 50.0)
+SENSORS = list(SENSOR_PRESETS.values()) + [
+    SensorConfig("narrow", height=10, width=8, fov_up_deg=5.0, fov_down_deg=-5.0, min_range=1.0, max_range=30.0)]
+
+
+def scan(seed: int, n: int = 40000) -> np.ndarray:
+    """A dense random scan with the awkward cases in it."""
+    rng = np.random.default_rng(seed)
+    r = rng.uniform(0.5, 130.0, n)
+    yaw = rng.uniform(-np.pi, np.pi, n)
+    pitch = np.radians(rng.uniform(-50.0, 30.0, n))
+    pts = np.stack([r * np.cos(pitch) * np.cos(yaw), r * np.cos(pitch) * np.sin(yaw), r * np.sin(pitch)], 1)
+    edge = np.array([[5.0, 0.0, 0.0], [-5.0, 0.0, 0.0], [0.0, 5.0, 0.0], [0.0, -5.0, 0.0], [-5.0, -0.0, 0.0],
+                     [0.0, 0.0, 5.0], [0.0, 0.0, -5.0], [3.0, 3.0, 0.0], [-3.0, 3.0, -3.0], [1e-3, 0.0, 0.0]])
+    ties = np.repeat(pts[:50], 3, axis=0)  # the same point three times: exact ties on one pixel
+    return np.concatenate([pts, edge, ties, pts[:200] * 1.0001]).astype(np.float32)
+
+
+def pose(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-0.3, 0.3)
+    t = np.eye(4)
+    t[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    t[:3, 3] = rng.uniform(-4.0, 4.0, 3)
+    return t
+
+
+def both(fn):
+    """fn() on the compiled kernels and on the numpy code."""
+    if not kernels.enabled():
+        pytest.fail(f"the compiled kernels are not in use here: {kernels.status()} (make install builds them)")
+    compiled = fn()
+    with kernels.disabled():
+        reference = fn()
+    return compiled, reference
+
+
+@pytest.mark.parametrize("sensor", SENSORS, ids=lambda s: s.name)
+def test_pixels_and_projection_are_bit_identical(sensor):
+    pts = scan(1)
+    got, want = both(lambda: pixel_index(pts, sensor))
+    for field in ("u", "v", "range", "in_image"):
+        np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+    x, y, z = np.array(pts.T, order="C")
+    got, want = both(lambda: pixel_index_columns(x, y, z, sensor))
+    np.testing.assert_array_equal(got.u, want.u)
+    np.testing.assert_array_equal(got.v, want.v)
+    remission = np.linspace(0, 1, len(pts), dtype=np.float32)
+    got, want = both(lambda: project(pts, remission, sensor))
+    for field in ("range", "xyz", "remission", "point_index"):
+        np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+    got, want = both(lambda: project_range(pts, sensor))
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("signed", [True, False])
+def test_residuals_and_free_space_are_bit_identical(signed):
+    sensor = SENSOR_PRESETS["hdl64"]
+    current_pose, past_pose = pose(4), pose(5)
+    current = scan(2, n=120000)
+    # The same surfaces seen from the past pose, half of them moved: residuals of all signs and sizes.
+    moved = current.copy()
+    moved[::2] *= np.float32(1.05)
+    to_past = np.linalg.inv(past_pose) @ current_pose
+    past = (moved @ to_past[:3, :3].T + to_past[:3, 3]).astype(np.float32)
+    image = project(current, np.zeros(len(current), np.float32), sensor)
+    got, want = both(lambda: past_range_image(past, past_pose, current_pose, sensor))
+    np.testing.assert_array_equal(got, want)
+    got, want = both(lambda: residual_image(image.range, past_range_image(past, past_pose, current_pose, sensor),
+                                            WINDOW, signed))
+    np.testing.assert_array_equal(got, want)
+    assert np.count_nonzero(got) > 1000
+    past_own = project_range(past, sensor)
+    got, want = both(lambda: free_space_image(image.xyz, image.mask, past_own, to_past, sensor, WINDOW))
+    np.testing.assert_array_equal(got, want)
+    assert np.count_nonzero(got) > 1000
+    buffered = [(past_own, past_pose), (project_range(current, sensor), current_pose)]
+    got, want = both(lambda: free_space_images(image.xyz, image.mask, current_pose, buffered, (1, 2, 3), sensor,
+                                               WINDOW))
+    np.testing.assert_array_equal(got, want)
+    assert not got[2].any()  # no third past scan: zero
+
+
+def test_disabled_runs_the_numpy_code_and_status_says_which():
+    assert kernels.enabled(), kernels.status()
+    assert kernels.status().startswith("compiled kernels")
+    with kernels.disabled():
+        assert not kernels.enabled()
+        assert kernels.status().startswith("numpy")
+    assert kernels.enabled()
+
+
+def test_switched_off_in_the_environment_and_a_stale_build_fall_back_to_numpy(monkeypatch):
+    env = dict(os.environ, ROS2_MOS_KERNELS="0")
+    out = subprocess.run([sys.executable, "-c", "from ros2_mos.core import kernels; "
+                          "print(kernels.enabled(), kernels.status())"], env=env, capture_output=True, text=True,
+                         check=True).stdout
+    assert out.startswith("False numpy (compiled kernels off: ROS2_MOS_KERNELS=0)")
+    monkeypatch.setattr(kernels, "ABI", kernels.ABI + 1)
+    lib, status = kernels._load()
+    assert lib is None and "stale" in status
+
+
+def test_bad_shapes_raise():
+    sensor = SENSOR_PRESETS["vlp16"]
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        kernels.project(np.zeros((4, 2), np.float32), sensor)
+    with pytest.raises(ValueError, match="different lengths"):
+        kernels.project((np.zeros(3, np.float32), np.zeros(3, np.float32), np.zeros(2, np.float32)), sensor)
+    with pytest.raises(ValueError, match="pixels"):
+        kernels.free_space(np.zeros((3, 10), np.float32), np.arange(3), np.eye(4), sensor,
+                           np.zeros((16, 1024), np.float32), 2.0, 50.0)
+    with pytest.raises(ValueError, match="shapes"):
+        kernels.residual(np.zeros((2, 3), np.float32), np.zeros((3, 2), np.float32), 2.0, 50.0, True)
