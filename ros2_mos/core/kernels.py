@@ -55,17 +55,17 @@ def _library_path() -> Path | None:
 def _load() -> tuple[ctypes.CDLL | None, str]:
     """The library and a one-line status."""
     if os.environ.get("ROS2_MOS_KERNELS", "1").strip() in ("0", "false", "no", "off"):
-        return None, "numpy (compiled kernels off: ROS2_MOS_KERNELS=0)"
+        return None, "numpy code (compiled kernels off: ROS2_MOS_KERNELS=0)"
     path = _library_path()
     if path is None:
-        return None, "numpy (compiled kernels not built: reinstall with a C compiler, `pip install -e .`)"
+        return None, "numpy code (compiled kernels not built: reinstall with a C compiler, `pip install -e .`)"
     try:
         lib = ctypes.CDLL(str(path))
         abi = lib.mos_kernels_abi()
     except (OSError, AttributeError) as err:
-        return None, f"numpy (compiled kernels unusable: {err})"
+        return None, f"numpy code (compiled kernels unusable: {err})"
     if abi != ABI:
-        return None, f"numpy (compiled kernels are stale: ABI {abi}, want {ABI}; reinstall, `pip install -e .`)"
+        return None, f"numpy code (compiled kernels are stale: ABI {abi}, want {ABI}; reinstall, `pip install -e .`)"
     vp = ctypes.c_void_p
     lib.mos_project.restype = None
     lib.mos_project.argtypes = [vp, vp, vp, ctypes.c_int64, ctypes.c_int64, vp, ctypes.POINTER(_Sensor),
@@ -75,7 +75,7 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
                                    ctypes.c_float, ctypes.c_float, vp]
     lib.mos_residual.restype = None
     lib.mos_residual.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_float, ctypes.c_float, ctypes.c_int32, vp]
-    return lib, f"compiled kernels ({path.name})"
+    return lib, "compiled kernels"
 
 
 _LIB, _STATUS = _load()
@@ -89,7 +89,7 @@ def enabled() -> bool:
 
 def status() -> str:
     """One line: which geometry code runs, and why not the compiled kernels where they are off."""
-    return "numpy (compiled kernels off for this run)" if _forced_off and _LIB is not None else _STATUS
+    return "numpy code (compiled kernels off for this run)" if _forced_off and _LIB is not None else _STATUS
 
 
 @contextmanager

@@ -92,7 +92,7 @@ def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, thread
     label = f"{meta.network} {meta.input.label} ({Path(pipeline.model.path).name})"
     notes = (f"{pipeline.sensor.height}x{pipeline.sensor.width}, {pipeline.model.provider}, ORT threads "
              f"{threads or 'default'}, geometry {geometry}"
-             + (f" ({kernels.status()})" if geometry == "numpy" else ""))
+             + (f", {kernels.status()}" if geometry == "numpy" else ""))
     return summarise(label, timings, notes)
 
 
