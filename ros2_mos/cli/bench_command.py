@@ -10,7 +10,7 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app
+from ros2_mos.cli.app import PARAMS_OPTION, app
 
 BENCH_SEQUENCE = "bench"
 BENCH_SEED = 7
@@ -37,6 +37,7 @@ def bench(
         None, help="Also time NETWORK:N (e.g. salsanext:8) exported with random weights: speed does not depend "
                    "on the weights, so this times networks nobody trained here (needs torch)"),
     out: Optional[Path] = typer.Option(None, help="Also write the report (Markdown) to this file"),
+    params: Optional[Path] = PARAMS_OPTION,
 ) -> None:
     """Median / p95 ms per stage, end-to-end latency, Hz and peak RSS; reference ratio; the node under replay."""
     from ros2_mos.cli.demo_command import ensure_sequence
@@ -45,6 +46,10 @@ def bench(
     from ros2_mos.tools.bench import bench_pipeline, format_table
 
     spec = sensor_preset(sensor)
+    if params is not None:
+        from ros2_mos.cli.core_commands import load_config
+
+        load_config(params, None, spec.name)  # a bad file: one line here, not a traceback from the timing process
     seq_dir, bag = ensure_sequence(data, BENCH_SEQUENCE, scans + 5, BENCH_SEED, sensor=spec.name)
     models = list(model) if model else [default_model_path(spec.name)]
     if untrained:
@@ -57,7 +62,8 @@ def bench(
     results = []
     for m in models:
         typer.echo(f"timing {m.name} ...")
-        results.append(bench_pipeline(bag, m, scans, threads=threads, geometry=geometry, sensor=spec.name))
+        results.append(bench_pipeline(bag, m, scans, threads=threads, geometry=geometry, sensor=spec.name,
+                                      params=params))
     if reference and spec.name == "hdl64":
         typer.echo("timing the LiDAR-MOS-style reference (SalsaNext N=8, PyTorch eager) ...")
         results.append(_bench_reference(seq_dir, reference_scans))

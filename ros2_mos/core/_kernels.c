@@ -21,7 +21,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 1
+#define MOS_KERNELS_ABI 3
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -203,6 +203,105 @@ void mos_free_space(const float *x, const float *y, const float *z, const int64_
             }
         }
     }
+}
+
+/* The normal of the surface at each pixel of a scan's own points (planes px, py, pz; range 0 where empty):
+ * the cross product of the vectors to the pixel on the right (wrapping around) and the one below, normalised,
+ * where all three pixels hold points no farther apart than 5 % of the range + 0.3 m (squared distances
+ * compared); (0, 0, 0) elsewhere and on the last row. Double precision, stored as float32
+ * (core/registration.py, normal_planes). */
+/* mos_normals for one pixel p0 with its right neighbour p1 and the one below p2. Branch-free, so that the
+ * row loop vectorises. */
+static inline void normal_at(const float *restrict px, const float *restrict py, const float *restrict pz,
+                             const float *restrict range, int64_t p0, int64_t p1, int64_t p2, float *restrict nx_out,
+                             float *restrict ny_out, float *restrict nz_out) {
+    const double sx = px[p0], sy = py[p0], sz = pz[p0];
+    const double ax = px[p1] - sx, ay = py[p1] - sy, az = pz[p1] - sz;
+    const double cx = px[p2] - sx, cy = py[p2] - sy, cz = pz[p2] - sz;
+    const double limit = 0.05 * (double)range[p0] + 0.3, limit2 = limit * limit;
+    const double nx = ay * cz - az * cy, ny = az * cx - ax * cz, nz = ax * cy - ay * cx;
+    const double nn = sqrt(nx * nx + ny * ny + nz * nz);
+    const int ok = (range[p0] > 0.0f) & (range[p1] > 0.0f) & (range[p2] > 0.0f) &
+                   (ax * ax + ay * ay + az * az < limit2) & (cx * cx + cy * cy + cz * cz < limit2) & (nn > 1e-9);
+    const double div = ok ? nn : 1.0;
+    nx_out[p0] = ok ? (float)(nx / div) : 0.0f;
+    ny_out[p0] = ok ? (float)(ny / div) : 0.0f;
+    nz_out[p0] = ok ? (float)(nz / div) : 0.0f;
+}
+
+MOS_CLONES void mos_normals(const float *restrict px, const float *restrict py, const float *restrict pz,
+                            const float *restrict range, int32_t width, int32_t height, float *restrict nx_out,
+                            float *restrict ny_out, float *restrict nz_out) {
+    const int64_t w = width;
+    for (int64_t v = 0; v + 1 < height; ++v) {
+        const int64_t row = v * w;
+        for (int64_t u = 0; u + 1 < w; ++u)
+            normal_at(px, py, pz, range, row + u, row + u + 1, row + w + u, nx_out, ny_out, nz_out);
+        normal_at(px, py, pz, range, row + w - 1, row, row + w + w - 1, nx_out, ny_out, nz_out);
+    }
+    for (int64_t u = (int64_t)(height - 1) * w; u < (int64_t)height * w; ++u) nx_out[u] = ny_out[u] = nz_out[u] = 0.0f;
+}
+
+/* The sums of one Gauss-Newton step of projective point-to-plane ICP (core/registration.py, plane_icp_sums):
+ * each of the m current points at the flat pixels `points` of the planes x, y, z is moved by t into the past
+ * scan's frame and paired with the past scan's own point at its pixel (planes px, py, pz) and that pixel's
+ * normal (planes nx, ny, nz from mos_normals; zero: no pair). Pairs are kept where the point-to-plane distance
+ * e is below plane_limit and the squared point distance below point_limit^2. With the Huber weight w(e) and
+ * J = (n, q x n): hessian (6 x 6) += w J J^T, gradient (6) += w J e, cost += w e^2, in double precision.
+ * Returns the number of pairs. */
+int64_t mos_plane_icp_sums(const float *x, const float *y, const float *z, const int64_t *points, int64_t m,
+                           const float *t, const MosSensor *s, const float *px, const float *py, const float *pz,
+                           const float *nxp, const float *nyp, const float *nzp, float plane_limit,
+                           float point_limit, float huber, double *hessian, double *gradient, double *cost) {
+    const double point_limit2 = (double)point_limit * (double)point_limit;
+    float gx[BLOCK], gy[BLOCK], gz[BLOCK], bx[BLOCK], by[BLOCK], bz[BLOCK], br[BLOCK];
+    int32_t bu[BLOCK], bv[BLOCK];
+    uint8_t inside[BLOCK];
+    const int64_t w = s->width;
+    int64_t pairs = 0;
+    /* Local sums (the upper triangle of the hessian): kept in registers, not re-read through the pointers. */
+    double hs[21] = {0}, gs[6] = {0}, cs = 0.0;
+    for (int64_t start = 0; start < m; start += BLOCK) {
+        const int64_t k = m - start < BLOCK ? m - start : BLOCK;
+        for (int64_t i = 0; i < k; ++i) {
+            const int64_t p = points[start + i];
+            gx[i] = x[p];
+            gy[i] = y[p];
+            gz[i] = z[p];
+        }
+        transform_block(gx, gy, gz, 1, k, t, bx, by, bz);
+        pixel_block(bx, by, bz, k, s, bu, bv, br, inside);
+        for (int64_t i = 0; i < k; ++i) {
+            if (!inside[i]) continue;
+            const int64_t p0 = (int64_t)bv[i] * w + bu[i];
+            const double nx = nxp[p0], ny = nyp[p0], nz = nzp[p0];
+            if (nx == 0.0 && ny == 0.0 && nz == 0.0) continue;
+            const double qx = bx[i], qy = by[i], qz = bz[i];
+            const double dx = qx - px[p0], dy = qy - py[p0], dz = qz - pz[p0];
+            const double e = nx * dx + ny * dy + nz * dz;
+            if (!(fabs(e) < plane_limit && dx * dx + dy * dy + dz * dz < point_limit2)) continue;
+            const double wt = fabs(e) <= huber ? 1.0 : huber / fabs(e);
+            const double jac[6] = {nx, ny, nz, qy * nz - qz * ny, qz * nx - qx * nz, qx * ny - qy * nx};
+            int idx = 0;
+            for (int a = 0; a < 6; ++a) {
+                const double wa = wt * jac[a];
+                for (int b = a; b < 6; ++b) hs[idx++] += wa * jac[b];
+                gs[a] += wa * e;
+            }
+            cs += wt * e * e;
+            ++pairs;
+        }
+    }
+    int idx = 0;
+    for (int a = 0; a < 6; ++a) {
+        for (int b = a; b < 6; ++b, ++idx) {
+            hessian[6 * a + b] += hs[idx];
+            if (b != a) hessian[6 * b + a] += hs[idx];
+        }
+        gradient[a] += gs[a];
+    }
+    *cost += cs;
+    return pairs;
 }
 
 /* residuals.residual_image of a current range image (npix pixels) against a past one: (r_j - r_0) / r_0

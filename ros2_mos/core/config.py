@@ -225,6 +225,26 @@ class ResidualConfig:
 
 
 @dataclass(frozen=True)
+class RegistrationConfig:
+    """Each past scan's relative pose refined against the current scan before the residuals (core/registration.py).
+
+    KISS-ICP's relative poses are centimetres off, more where the ego pulls away along a featureless street; a
+    few steps of projective point-to-plane ICP at the range image's resolution remove most of that.
+    """
+
+    iterations: int = knob(4, "scan-to-scan ICP steps against the previous scan; 0 = off (the odometry's relative "
+                              "poses as they are)", min=0, max=50)
+    other_iterations: int = knob(1, "steps for each farther past scan, from the registered trajectory", min=0,
+                                 max=50)
+    point_stride: int = knob(32, "every n-th point of the current scan takes part in it", min=1, max=64)
+    max_error: float = knob(0.3, "pairs farther from the past scan's surface are left out (m)", min=0.0, above=True,
+                            max=5.0)
+
+    def __post_init__(self) -> None:
+        check_knobs(self, "registration")
+
+
+@dataclass(frozen=True)
 class PostprocessConfig:
     """kNN back-projection over the range image, as RangeNet++ / LiDAR-MOS do it, and what follows it.
 
@@ -299,6 +319,7 @@ class MosConfig:
                                    "package", kind=str, unset="")
     sensor: SensorConfig | None = None
     residuals: ResidualConfig = field(default_factory=ResidualConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     postprocess: PostprocessConfig = field(default_factory=PostprocessConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     threshold: float = knob(0.0, "moving probability at or above which a point is labelled moving; 0 = the model's "

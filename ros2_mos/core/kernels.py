@@ -24,7 +24,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 1
+ABI = 3
 
 
 
@@ -73,6 +73,11 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     lib.mos_free_space.restype = None
     lib.mos_free_space.argtypes = [vp, vp, vp, vp, ctypes.c_int64, vp, ctypes.POINTER(_Sensor), vp,
                                    ctypes.c_float, ctypes.c_float, vp]
+    lib.mos_plane_icp_sums.restype = ctypes.c_int64
+    lib.mos_plane_icp_sums.argtypes = [vp, vp, vp, vp, ctypes.c_int64, vp, ctypes.POINTER(_Sensor), vp, vp, vp, vp,
+                                       vp, vp, ctypes.c_float, ctypes.c_float, ctypes.c_float, vp, vp, vp]
+    lib.mos_normals.restype = None
+    lib.mos_normals.argtypes = [vp, vp, vp, vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp]
     lib.mos_residual.restype = None
     lib.mos_residual.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_float, ctypes.c_float, ctypes.c_int32, vp]
     return lib, "compiled kernels"
@@ -211,3 +216,44 @@ def residual(current_range: np.ndarray, past_range: np.ndarray, lo: float, hi: f
     _LIB.mos_residual(current.ctypes.data, past.ctypes.data, current.size, _f32(lo), _f32(hi),
                       int(signed), out.ctypes.data)
     return out
+
+
+def normals(planes: np.ndarray, range_image: np.ndarray) -> np.ndarray:
+    """``registration.normal_planes``: (3, H*W) float32 unit normals of a scan's own points, 0 where none."""
+    planes = np.ascontiguousarray(planes, dtype=np.float32)
+    rng = np.ascontiguousarray(range_image, dtype=np.float32)
+    if rng.ndim != 2 or planes.shape != (3, rng.size):
+        raise ValueError(f"normals of planes {planes.shape} and a range image {rng.shape}")
+    out = np.empty_like(planes)
+    assert _LIB is not None
+    _LIB.mos_normals(planes[0].ctypes.data, planes[1].ctypes.data, planes[2].ctypes.data, rng.ctypes.data,
+                     rng.shape[1], rng.shape[0], out[0].ctypes.data, out[1].ctypes.data, out[2].ctypes.data)
+    return out
+
+
+def plane_icp_sums(planes: np.ndarray, points: np.ndarray, transform: np.ndarray, sensor: SensorConfig,
+                   past_planes: np.ndarray, past_normals: np.ndarray, plane_limit: float, point_limit: float,
+                   huber: float) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """``registration.plane_icp_sums`` (hessian, gradient, cost, pairs) in one pass: ``planes``, ``past_planes`` and
+    ``past_normals`` (3, H*W) float32 hold the current and the past scan's own points and the past normals,
+    ``points`` the flat current pixels to use."""
+    planes = np.ascontiguousarray(planes, dtype=np.float32)
+    past_planes = np.ascontiguousarray(past_planes, dtype=np.float32)
+    past_normals = np.ascontiguousarray(past_normals, dtype=np.float32)
+    points = np.ascontiguousarray(points, dtype=np.int64)
+    npix = sensor.height * sensor.width
+    if planes.shape != (3, npix) or past_planes.shape != (3, npix) or past_normals.shape != (3, npix):
+        raise ValueError(f"plane ICP: planes {planes.shape}, {past_planes.shape} and normals {past_normals.shape}, "
+                         f"sensor {sensor.height} x {sensor.width}")
+    hessian = np.zeros((6, 6), np.float64)
+    gradient = np.zeros(6, np.float64)
+    cost = np.zeros(1, np.float64)
+    t = _transform(transform)
+    assert _LIB is not None
+    pairs = _LIB.mos_plane_icp_sums(planes[0].ctypes.data, planes[1].ctypes.data, planes[2].ctypes.data,
+                                    points.ctypes.data, len(points), t.ctypes.data, ctypes.byref(_sensor(sensor)),
+                                    past_planes[0].ctypes.data, past_planes[1].ctypes.data, past_planes[2].ctypes.data,
+                                    past_normals[0].ctypes.data, past_normals[1].ctypes.data,
+                                    past_normals[2].ctypes.data, _f32(plane_limit), _f32(point_limit), _f32(huber),
+                                    hessian.ctypes.data, gradient.ctypes.data, cost.ctypes.data)
+    return hessian, gradient, float(cost[0]), int(pairs)

@@ -162,6 +162,9 @@ class BufferedScan:
     pose: np.ndarray  # (4, 4) world pose
     timestamp: float
     range_image: np.ndarray | None = None  # (H, W) its own range image (free-space inputs need it)
+    xyz_planes: np.ndarray | None = None  # (3, H*W) its own points per pixel (registration)
+    normals: np.ndarray | None = None  # (3, H*W) the normals at those points (registration)
+    registered_pose: np.ndarray | None = None  # (4, 4) its pose on the scan-to-scan registered trajectory
 
 
 class ScanBuffer:

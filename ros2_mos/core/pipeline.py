@@ -8,6 +8,7 @@ The node, the CLI (``infer``, ``process``, ``bench``) and the evaluation all cal
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from ros2_mos.core.network_input import assemble_input
 from ros2_mos.core.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
 from ros2_mos.core.postprocess import backproject
 from ros2_mos.core.projection import PixelIndex, RangeImage, check_points, finite_mask, project
+from ros2_mos.core.registration import normal_planes, register_to_past
 from ros2_mos.core.residuals import free_space_images, relative_pose, residual_images, transform_points
 from ros2_mos.core.segments import drop_small_regions, fill_segments
 from ros2_mos.core.sensor_check import implausible_message, mismatch_message
@@ -211,6 +213,10 @@ class MosPipeline:
         self._last_stamp: float | None = None
         self._last_pose: np.ndarray | None = None
         self._sensor_mismatch: str | None = None  # None: not checked yet
+        # Scan-to-scan registration before the residuals (core/registration.py); residual models only.
+        self._registers = self.setup.kind == "residual" and config.registration.iterations > 0
+        self._registered_pose = np.eye(4)  # the last scan's pose on the registered trajectory
+        self._normals: np.ndarray | None = None  # the last scan's normals (registration)
 
     @property
     def n_past(self) -> int:
@@ -255,7 +261,8 @@ class MosPipeline:
         watch.lap("validate")
         pose = self._pose(scan.xyz, pose, timestamp, notes)
         watch.lap("odometry")
-        past = self.buffer.newest_first()
+        past = self._registered(image, pose, self.buffer.newest_first())
+        watch.lap("registration")
         residuals, network_past = self._past_inputs(image, pose, past)
         watch.lap("residuals")
         prob_image = self._infer(image, network_past)
@@ -265,7 +272,7 @@ class MosPipeline:
         prob_image, point_prob = self._postprocess(prob_image, image)
         moving = point_prob >= self.threshold
         watch.lap("postprocess")
-        self._remember(scan, image, pose, timestamp, moving)
+        self._remember(scan, image, pose, timestamp, moving, prob_image >= self.threshold)
         watch.lap("map_update")
         watch.total()
         return MosResult(
@@ -336,6 +343,28 @@ class MosPipeline:
                 notes.reset = True
         return pose
 
+    def _registered(self, image: RangeImage, pose: np.ndarray, past: list[BufferedScan]) -> list[BufferedScan]:
+        """The buffered scans, those at the model's offsets with poses that give the registered relative poses.
+
+        Sets ``self._registered_pose`` (this scan's pose on the registered trajectory) and ``self._normals`` (its
+        normals, for when it is a past scan); ``_remember`` keeps both.
+        """
+        self._registered_pose = pose
+        if not self._registers:
+            return past
+        self._normals = normal_planes(image.planes, image.range)
+        if not past:
+            return past
+        at = sorted({0} | {o - 1 for o in self.setup.offsets if o <= len(past)})
+        self._registered_pose, to_past = register_to_past(
+            pose, image.planes, image.mask,
+            [(past[i].xyz_planes, past[i].normals, past[i].pose, past[i].registered_pose) for i in at],
+            self.sensor, self.config.registration)
+        out = list(past)
+        for i, transform in zip(at, to_past):
+            out[i] = dataclasses.replace(past[i], pose=pose @ np.linalg.inv(transform))
+        return out
+
     def _past_inputs(self, image: RangeImage, pose: np.ndarray,
                      past: list[BufferedScan]) -> tuple[np.ndarray, np.ndarray | list[RangeImage]]:
         """The residual images (empty for 'frames' setups) and what the network takes from the past scans."""
@@ -370,13 +399,22 @@ class MosPipeline:
                                              self.threshold)
 
     def _remember(self, scan: "_Scan", image: RangeImage, pose: np.ndarray, timestamp: float,
-                  moving: np.ndarray) -> None:
-        """The odometry map takes the scan (all of it, or its static points) and the buffer keeps it."""
+                  moving: np.ndarray, moving_pixels: np.ndarray) -> None:
+        """The odometry map takes the scan (all of it, or its static points) and the buffer keeps it.
+
+        Its normals are kept without the pixels labelled moving: later scans register against its static surfaces
+        only (in a traffic jam the movers are most of what is near).
+        """
+        if self._normals is not None:
+            self._normals[:, np.flatnonzero(moving_pixels)] = 0.0
         if self.config.odometry.map_update == "static":
             self.odometry.update_map(scan.xyz[~moving])
         else:
             self.odometry.update_map()
         self.buffer.push(BufferedScan(points=scan.xyz, remission=scan.remission, pose=pose, timestamp=timestamp,
-                                      range_image=image.range if self.setup.free_space else None))
+                                      range_image=image.range if self.setup.free_space else None,
+                                      xyz_planes=image.planes if self._registers else None,
+                                      normals=self._normals if self._registers else None,
+                                      registered_pose=self._registered_pose))
         self._last_stamp = timestamp
         self._last_pose = pose

@@ -46,6 +46,11 @@ class RangeImage:
         """Pixels that hold a point."""
         return self.point_index >= 0
 
+    @property
+    def planes(self) -> np.ndarray:
+        """(3, H*W) x, y and z planes (a view where ``xyz`` is one of a (3, H, W) array, as :func:`project` makes)."""
+        return np.moveaxis(self.xyz, -1, 0).reshape(3, -1)
+
 
 def check_points(points: np.ndarray, what: str = "points") -> np.ndarray:
     """Return ``points`` as an (N, 3) float array or raise ScanError naming the problem."""

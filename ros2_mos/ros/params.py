@@ -24,6 +24,7 @@ from ros2_mos.core.config import (
     MosConfig,
     OdometryConfig,
     PostprocessConfig,
+    RegistrationConfig,
     ResidualConfig,
     SensorConfig,
     knobs,
@@ -104,6 +105,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     *_pipeline_params("sensor.", SensorConfig, describe="custom sensor: "),
     *_MOS_TOP,
     *_pipeline_params("residuals.", ResidualConfig),
+    *_pipeline_params("registration.", RegistrationConfig),
     *_pipeline_params("postprocess.", PostprocessConfig),
     *_pipeline_params("odometry.", OdometryConfig),
     # --- input
@@ -227,6 +229,7 @@ def mos_config(values: Mapping[str, Any]) -> MosConfig:
     return MosConfig(
         sensor=_sensor(v),
         residuals=ResidualConfig(**_section(ResidualConfig, v, "residuals.")),
+        registration=RegistrationConfig(**_section(RegistrationConfig, v, "registration.")),
         postprocess=PostprocessConfig(**_section(PostprocessConfig, v, "postprocess.")),
         odometry=OdometryConfig(**_section(OdometryConfig, v, "odometry.")),
         **_section(MosConfig, v),

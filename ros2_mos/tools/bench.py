@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-STAGES = ("decode", "validate", "odometry", "projection", "residuals", "inference", "temporal", "postprocess",
+STAGES = ("decode", "validate", "odometry", "projection", "registration", "residuals", "inference", "temporal",
+          "postprocess",
           "map_update", "encode")
 
 
@@ -66,7 +67,7 @@ def peak_rss_mb() -> float:
 
 
 def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, threads: int,
-                    geometry: str = "numpy", sensor: str | None = None) -> BenchResult:
+                    geometry: str = "numpy", sensor: str | None = None, params: str | None = None) -> BenchResult:
     from ros2_mos.core import kernels
     from ros2_mos.core.pipeline import MosPipeline
     from ros2_mos.io.bags import iter_pointclouds
@@ -74,7 +75,7 @@ def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, thread
     from ros2_mos.ros.params import load_params, mos_config, node_settings
     from ros2_mos.ros.processor import ScanProcessor
 
-    values = load_params(None, model, sensor)
+    values = load_params(params, model, sensor)
     values["intra_op_threads"] = threads
     values["geometry_backend"] = geometry
     pipeline = MosPipeline(mos_config(values))
@@ -97,12 +98,12 @@ def _bench_pipeline(bag: str, model: str | None, scans: int, warmup: int, thread
 
 
 def bench_pipeline(bag: Path, model: Path | None, scans: int = 50, warmup: int = 5, threads: int = 0,
-                   geometry: str = "numpy", sensor: str | None = None) -> BenchResult:
+                   geometry: str = "numpy", sensor: str | None = None, params: Path | None = None) -> BenchResult:
     """Time the node's pipeline over the bag's first clouds, in a fresh process."""
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
         return pool.submit(_bench_pipeline, str(bag), None if model is None else str(model), scans, warmup,
-                           threads, geometry, sensor).result()
+                           threads, geometry, sensor, None if params is None else str(params)).result()
 
 
 def format_table(results: list[BenchResult]) -> str:
