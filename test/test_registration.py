@@ -102,6 +102,22 @@ def test_compiled_and_numpy_code_agree():
     assert got[2] == pytest.approx(want[2], rel=1e-9)
 
 
+def test_compiled_gauss_newton_loop_matches_the_numpy_loop():
+    if not kernels.enabled():
+        pytest.fail(kernels.status())
+    world = room()
+    current, past = scan_at(world, pose(0.6, 0.1, 0.8)), scan_at(world, pose(0.0))
+    normals = normal_planes(past.planes, past.range)
+    points = np.flatnonzero(current.mask.reshape(-1))[::4]
+    start = pose(0.5, 0.15, 0.4)
+    for iterations in (1, 3, 10):
+        got = refine_to_past(start, current.planes, points, past.planes, normals, SENSOR, iterations, 0.3)
+        with kernels.disabled():
+            want = refine_to_past(start, current.planes, points, past.planes, normals, SENSOR, iterations, 0.3)
+        assert got[1] and want[1]
+        np.testing.assert_allclose(got[0], want[0], rtol=0, atol=1e-9)
+
+
 def test_a_wrong_relative_pose_is_corrected(geometry_code):
     world = room()
     past_pose, current_pose = pose(0.0), pose(0.8, 0.05, 1.0)

@@ -21,7 +21,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 3
+#define MOS_KERNELS_ABI 4
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -302,6 +302,87 @@ int64_t mos_plane_icp_sums(const float *x, const float *y, const float *z, const
     }
     *cost += cs;
     return pairs;
+}
+
+/* Solves A x = b for a symmetric positive definite 6 x 6 A (row-major) by Cholesky; 0 when A is not. */
+static int solve6(const double *a, const double *b, double *x) {
+    double l[36] = {0}, y[6];
+    for (int i = 0; i < 6; ++i) {
+        for (int j = 0; j <= i; ++j) {
+            double sum = a[6 * i + j];
+            for (int k = 0; k < j; ++k) sum -= l[6 * i + k] * l[6 * j + k];
+            if (i == j) {
+                if (!(sum > 0.0)) return 0;
+                l[6 * i + i] = sqrt(sum);
+            } else {
+                l[6 * i + j] = sum / l[6 * j + j];
+            }
+        }
+    }
+    for (int i = 0; i < 6; ++i) {
+        double sum = b[i];
+        for (int k = 0; k < i; ++k) sum -= l[6 * i + k] * y[k];
+        y[i] = sum / l[6 * i + i];
+    }
+    for (int i = 5; i >= 0; --i) {
+        double sum = y[i];
+        for (int k = i + 1; k < 6; ++k) sum -= l[6 * k + i] * x[k];
+        x[i] = sum / l[6 * i + i];
+    }
+    return 1;
+}
+
+/* registration.refine_to_past's Gauss-Newton loop: pose (row-major 4 x 4, current frame -> past frame) is
+ * updated in place by up to `iterations` steps pose <- exp(delta) pose, delta = -(H + damping tr(H)/6 I)^-1 g from
+ * mos_plane_icp_sums (exp: Rodrigues for the rotation, the translation as it is), stopping after a step smaller
+ * than conv_t (m) and conv_r (rad). Returns the steps taken, or -1 (pose unspecified) when a step had fewer than
+ * min_pairs pairs or its equations were singular. */
+int32_t mos_refine(const float *x, const float *y, const float *z, const int64_t *points, int64_t m, double *pose,
+                   const MosSensor *s, const float *px, const float *py, const float *pz, const float *nxp,
+                   const float *nyp, const float *nzp, int32_t iterations, float plane_limit, float point_limit,
+                   float huber, double damping, int64_t min_pairs, double conv_t, double conv_r) {
+    int32_t step = 0;
+    while (step < iterations) {
+        float t[12];
+        for (int i = 0; i < 12; ++i) t[i] = (float)pose[i];
+        double h[36] = {0}, g[6] = {0}, cost = 0.0, delta[6], rhs[6];
+        const int64_t pairs = mos_plane_icp_sums(x, y, z, points, m, t, s, px, py, pz, nxp, nyp, nzp, plane_limit,
+                                                 point_limit, huber, h, g, &cost);
+        if (pairs < min_pairs) return -1;
+        const double trace = h[0] + h[7] + h[14] + h[21] + h[28] + h[35];
+        for (int i = 0; i < 6; ++i) {
+            h[7 * i] += damping * trace / 6.0;
+            rhs[i] = -g[i];
+        }
+        if (!solve6(h, rhs, delta)) return -1;
+        for (int i = 0; i < 6; ++i)
+            if (!isfinite(delta[i])) return -1;
+        const double angle = sqrt(delta[3] * delta[3] + delta[4] * delta[4] + delta[5] * delta[5]);
+        double e[16] = {1, 0, 0, delta[0], 0, 1, 0, delta[1], 0, 0, 1, delta[2], 0, 0, 0, 1};
+        if (angle > 0.0) {
+            const double kx = delta[3] / angle, ky = delta[4] / angle, kz = delta[5] / angle;
+            const double k[9] = {0, -kz, ky, kz, 0, -kx, -ky, kx, 0};
+            const double sn = sin(angle), cs = 1.0 - cos(angle);
+            for (int i = 0; i < 3; ++i)
+                for (int j = 0; j < 3; ++j) {
+                    double kk = 0.0;
+                    for (int q = 0; q < 3; ++q) kk += k[3 * i + q] * k[3 * q + j];
+                    e[4 * i + j] = (i == j ? 1.0 : 0.0) + sn * k[3 * i + j] + cs * kk;
+                }
+        }
+        double out[16];
+        for (int i = 0; i < 4; ++i)
+            for (int j = 0; j < 4; ++j) {
+                double sum = 0.0;
+                for (int q = 0; q < 4; ++q) sum += e[4 * i + q] * pose[4 * q + j];
+                out[4 * i + j] = sum;
+            }
+        for (int i = 0; i < 16; ++i) pose[i] = out[i];
+        ++step;
+        const double moved = sqrt(delta[0] * delta[0] + delta[1] * delta[1] + delta[2] * delta[2]);
+        if (moved < conv_t && angle < conv_r) break;
+    }
+    return step;
 }
 
 /* residuals.residual_image of a current range image (npix pixels) against a past one: (r_j - r_0) / r_0

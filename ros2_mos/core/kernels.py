@@ -24,7 +24,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 3
+ABI = 4
 
 
 
@@ -76,6 +76,10 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     lib.mos_plane_icp_sums.restype = ctypes.c_int64
     lib.mos_plane_icp_sums.argtypes = [vp, vp, vp, vp, ctypes.c_int64, vp, ctypes.POINTER(_Sensor), vp, vp, vp, vp,
                                        vp, vp, ctypes.c_float, ctypes.c_float, ctypes.c_float, vp, vp, vp]
+    lib.mos_refine.restype = ctypes.c_int32
+    lib.mos_refine.argtypes = [vp, vp, vp, vp, ctypes.c_int64, vp, ctypes.POINTER(_Sensor), vp, vp, vp, vp, vp, vp,
+                               ctypes.c_int32, ctypes.c_float, ctypes.c_float, ctypes.c_float, ctypes.c_double,
+                               ctypes.c_int64, ctypes.c_double, ctypes.c_double]
     lib.mos_normals.restype = None
     lib.mos_normals.argtypes = [vp, vp, vp, vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp]
     lib.mos_residual.restype = None
@@ -257,3 +261,29 @@ def plane_icp_sums(planes: np.ndarray, points: np.ndarray, transform: np.ndarray
                                     past_normals[2].ctypes.data, _f32(plane_limit), _f32(point_limit), _f32(huber),
                                     hessian.ctypes.data, gradient.ctypes.data, cost.ctypes.data)
     return hessian, gradient, float(cost[0]), int(pairs)
+
+
+def refine(planes: np.ndarray, points: np.ndarray, transform: np.ndarray, sensor: SensorConfig,
+           past_planes: np.ndarray, past_normals: np.ndarray, iterations: int, plane_limit: float, point_limit: float,
+           huber: float, damping: float, min_pairs: int, converged: tuple[float, float]) -> np.ndarray | None:
+    """``registration.refine_to_past``'s Gauss-Newton loop in one call: the refined 4x4 transform, or None where a
+    step had too few pairs or singular equations."""
+    planes = np.ascontiguousarray(planes, dtype=np.float32)
+    past_planes = np.ascontiguousarray(past_planes, dtype=np.float32)
+    past_normals = np.ascontiguousarray(past_normals, dtype=np.float32)
+    points = np.ascontiguousarray(points, dtype=np.int64)
+    npix = sensor.height * sensor.width
+    if planes.shape != (3, npix) or past_planes.shape != (3, npix) or past_normals.shape != (3, npix):
+        raise ValueError(f"plane ICP: planes {planes.shape}, {past_planes.shape} and normals {past_normals.shape}, "
+                         f"sensor {sensor.height} x {sensor.width}")
+    pose = np.array(transform, dtype=np.float64, order="C")
+    if pose.shape != (4, 4):
+        raise ValueError(f"a 4x4 transform, got {pose.shape}")
+    assert _LIB is not None
+    steps = _LIB.mos_refine(planes[0].ctypes.data, planes[1].ctypes.data, planes[2].ctypes.data, points.ctypes.data,
+                            len(points), pose.ctypes.data, ctypes.byref(_sensor(sensor)), past_planes[0].ctypes.data,
+                            past_planes[1].ctypes.data, past_planes[2].ctypes.data, past_normals[0].ctypes.data,
+                            past_normals[1].ctypes.data, past_normals[2].ctypes.data, int(iterations),
+                            _f32(plane_limit), _f32(point_limit), _f32(huber), float(damping), int(min_pairs),
+                            float(converged[0]), float(converged[1]))
+    return None if steps < 0 else pose

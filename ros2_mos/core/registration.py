@@ -127,6 +127,10 @@ def refine_to_past(to_past: np.ndarray, planes: np.ndarray, points: np.ndarray, 
     the pose by more than ``MAX_CORRECTION``.
     """
     start = np.asarray(to_past, np.float64)
+    if kernels.enabled():
+        refined = kernels.refine(planes, points, start, sensor, past_planes, past_normals, iterations, plane_limit,
+                                 POINT_LIMIT, HUBER, DAMPING, MIN_PAIRS, CONVERGED)
+        return _checked(start, refined)
     pose = start
     for _ in range(iterations):
         hessian, gradient, _, pairs = plane_icp_sums(planes, points, pose, sensor, past_planes, past_normals,
@@ -143,6 +147,13 @@ def refine_to_past(to_past: np.ndarray, planes: np.ndarray, points: np.ndarray, 
         pose = se3_exp(delta) @ pose
         if np.linalg.norm(delta[:3]) < CONVERGED[0] and np.linalg.norm(delta[3:]) < CONVERGED[1]:
             break
+    return _checked(start, pose)
+
+
+def _checked(start: np.ndarray, pose: np.ndarray | None) -> tuple[np.ndarray, bool]:
+    """``pose``, unless it is None or moves ``start`` by more than ``MAX_CORRECTION``: then ``start``."""
+    if pose is None:
+        return start, False
     correction = pose @ np.linalg.inv(start)
     moved = float(np.linalg.norm(correction[:3, 3]))
     turned = math.acos(max(-1.0, min(1.0, (float(np.trace(correction[:3, :3])) - 1.0) / 2.0)))
