@@ -10,6 +10,7 @@
  * stride (3 for (N, 3) rows, 1 for planes), so no copy is made to call a kernel.
  */
 #include <math.h>
+#include <stddef.h>
 #include <stdint.h>
 
 /* On x86-64 with GCC, the per-point arithmetic is also built for AVX2 and picked at load time (the same
@@ -21,7 +22,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 4
+#define MOS_KERNELS_ABI 5
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -302,6 +303,38 @@ int64_t mos_plane_icp_sums(const float *x, const float *y, const float *z, const
     }
     *cost += cs;
     return pairs;
+}
+
+/* projection.project's images from mos_project's closest point per pixel: for each of the npix pixels, where
+ * winner >= 0, the range (best), the winner's x, y, z (points: (N, 3) rows) and remission; 0 elsewhere
+ * (point_index -1). range may alias best. */
+void mos_fill_images(const int32_t *winner, const float *best, int64_t npix, const float *points,
+                     const float *remission, float *range, float *x, float *y, float *z, float *rem_out,
+                     int32_t *point_index) {
+    for (int64_t p = 0; p < npix; ++p) {
+        const int32_t i = winner[p];
+        point_index[p] = i;
+        if (i >= 0) {
+            range[p] = best[p];
+            x[p] = points[3 * (int64_t)i];
+            y[p] = points[3 * (int64_t)i + 1];
+            z[p] = points[3 * (int64_t)i + 2];
+            rem_out[p] = remission[i];
+        } else {
+            range[p] = 0.0f;
+            x[p] = y[p] = z[p] = rem_out[p] = 0.0f;
+        }
+    }
+}
+
+/* The closest range per pixel of n points moved by t (NULL: as they are), 0 where no point: projection.project_range
+ * and residuals.past_range_image in one call. out has H*W entries. */
+void mos_range_image(const float *x, const float *y, const float *z, int64_t stride, int64_t n, const float *t,
+                     const MosSensor *s, float *out) {
+    const int64_t npix = (int64_t)s->height * s->width;
+    for (int64_t p = 0; p < npix; ++p) out[p] = INFINITY;
+    mos_project(x, y, z, stride, n, t, s, NULL, NULL, NULL, NULL, out, NULL);
+    for (int64_t p = 0; p < npix; ++p) out[p] = out[p] == INFINITY ? 0.0f : out[p];
 }
 
 /* Solves A x = b for a symmetric positive definite 6 x 6 A (row-major) by Cholesky; 0 when A is not. */

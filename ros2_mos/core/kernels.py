@@ -24,7 +24,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 4
+ABI = 5
 
 
 
@@ -80,6 +80,10 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     lib.mos_refine.argtypes = [vp, vp, vp, vp, ctypes.c_int64, vp, ctypes.POINTER(_Sensor), vp, vp, vp, vp, vp, vp,
                                ctypes.c_int32, ctypes.c_float, ctypes.c_float, ctypes.c_float, ctypes.c_double,
                                ctypes.c_int64, ctypes.c_double, ctypes.c_double]
+    lib.mos_fill_images.restype = None
+    lib.mos_fill_images.argtypes = [vp, vp, ctypes.c_int64, vp, vp, vp, vp, vp, vp, vp, vp]
+    lib.mos_range_image.restype = None
+    lib.mos_range_image.argtypes = [vp, vp, vp, ctypes.c_int64, ctypes.c_int64, vp, ctypes.POINTER(_Sensor), vp]
     lib.mos_normals.restype = None
     lib.mos_normals.argtypes = [vp, vp, vp, vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp]
     lib.mos_residual.restype = None
@@ -187,6 +191,40 @@ def project(points: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray], sens
                      ctypes.byref(_sensor(sensor)), _ptr(u), _ptr(v), _ptr(rng), _ptr(inside), _ptr(best),
                      _ptr(winner))
     return ((u, v, rng, inside) if pixels else None), best, winner
+
+
+def range_image(points: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray], sensor: SensorConfig,
+                transform: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) closest range per pixel of the points (moved by ``transform`` first, when given), 0 where empty."""
+    coords, stride, n = _coordinates(points)
+    t = _transform(transform)
+    out = np.empty((sensor.height, sensor.width), np.float32)
+    assert _LIB is not None
+    _LIB.mos_range_image(coords[0].ctypes.data, coords[1].ctypes.data, coords[2].ctypes.data, stride, n, _ptr(t),
+                         ctypes.byref(_sensor(sensor)), out.ctypes.data)
+    return out
+
+
+def fill_images(winner: np.ndarray, best: np.ndarray, points: np.ndarray, remission: np.ndarray,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """From :func:`project`'s closest point per pixel: range (0 where empty), (3, H*W) x, y, z planes, remission
+    and point index (-1 where empty), each per pixel."""
+    winner = np.ascontiguousarray(winner, dtype=np.int32)
+    best = np.ascontiguousarray(best, dtype=np.float32)
+    rows = np.ascontiguousarray(points, dtype=np.float32)
+    rem = np.ascontiguousarray(remission, dtype=np.float32)
+    npix = winner.size
+    if best.size != npix or rows.ndim != 2 or rows.shape[1] != 3 or len(rem) != len(rows):
+        raise ValueError(f"fill images: {npix} winners, {best.size} ranges, points {rows.shape}, {len(rem)} remissions")
+    rng = np.empty(npix, np.float32)
+    planes = np.empty((3, npix), np.float32)
+    rem_out = np.empty(npix, np.float32)
+    index = np.empty(npix, np.int32)
+    assert _LIB is not None
+    _LIB.mos_fill_images(winner.ctypes.data, best.ctypes.data, npix, rows.ctypes.data, rem.ctypes.data,
+                         rng.ctypes.data, planes[0].ctypes.data, planes[1].ctypes.data, planes[2].ctypes.data,
+                         rem_out.ctypes.data, index.ctypes.data)
+    return rng, planes, rem_out, index
 
 
 def free_space(planes: np.ndarray, occupied: np.ndarray, transform: np.ndarray, sensor: SensorConfig,

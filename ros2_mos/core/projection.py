@@ -173,16 +173,14 @@ def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> 
     if len(rem) != len(pts):
         raise ScanError(f"remission has {len(rem)} values for {len(pts)} points")
     h, w = sensor.height, sensor.width
-    if kernels.enabled():  # pixels and closest points in one pass
+    if kernels.enabled():  # pixels and closest points in one pass, then the images in another
         columns, best, winner = kernels.project(pts, sensor, closest=True)
-        pixels = PixelIndex(*columns)
-        pix = np.flatnonzero(winner >= 0)
-        idx = winner[pix]
-        best[winner < 0] = 0.0
-        rng = best
-    else:
-        pixels = pixel_index(pts, sensor)
-        rng, pix, idx = closest_per_pixel(pixels, w, h)
+        rng, planes, rem_img, point_index = kernels.fill_images(winner, best, pts, rem)
+        return RangeImage(range=rng.reshape(h, w), xyz=planes.reshape(3, h, w).transpose(1, 2, 0),
+                          remission=rem_img.reshape(h, w), point_index=point_index.reshape(h, w),
+                          pixels=PixelIndex(*columns))
+    pixels = pixel_index(pts, sensor)
+    rng, pix, idx = closest_per_pixel(pixels, w, h)
     point_index = np.full(h * w, -1, dtype=np.int32)
     point_index[pix] = idx
     # One flat scatter per coordinate: a scatter of (n, 3) rows is 10x slower than three of n values.
@@ -203,9 +201,7 @@ def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> 
 def project_range(points: np.ndarray, sensor: SensorConfig) -> np.ndarray:
     """Only the (H, W) range image (0 where empty): what a past scan needs for its residual."""
     if kernels.enabled():  # the (N, 3) rows as they are, no transposed copy
-        best = kernels.project(check_points(points), sensor, pixels=False, closest=True)[1]
-        best[np.isinf(best)] = 0.0
-        return best.reshape(sensor.height, sensor.width)
+        return kernels.range_image(check_points(points), sensor)
     x, y, z = np.array(check_points(points).T, dtype=np.float32, order="C")
     return project_range_columns(x, y, z, sensor)
 
@@ -213,9 +209,7 @@ def project_range(points: np.ndarray, sensor: SensorConfig) -> np.ndarray:
 def project_range_columns(x: np.ndarray, y: np.ndarray, z: np.ndarray, sensor: SensorConfig) -> np.ndarray:
     """:func:`project_range` of points given as three contiguous float32 coordinate arrays."""
     if kernels.enabled():
-        best = kernels.project((x, y, z), sensor, pixels=False, closest=True)[1]
-        best[np.isinf(best)] = 0.0
-        return best.reshape(sensor.height, sensor.width)
+        return kernels.range_image((x, y, z), sensor)
     pixels = pixel_index_columns(x, y, z, sensor)
     candidates, pix = _flat_pixels(pixels, sensor.width)
     best = np.full(sensor.height * sensor.width, np.inf, dtype=np.float32)

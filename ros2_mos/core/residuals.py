@@ -86,10 +86,8 @@ def past_range_image(
 ) -> np.ndarray:
     """The range image of a past scan as seen from the current scan's pose."""
     if kernels.enabled():  # moved and projected in one pass
-        best = kernels.project(check_points(past_points, "past points"), sensor,
-                               relative_pose(current_pose, past_pose), pixels=False, closest=True)[1]
-        best[np.isinf(best)] = 0.0
-        return best.reshape(sensor.height, sensor.width)
+        return kernels.range_image(check_points(past_points, "past points"), sensor,
+                                   relative_pose(current_pose, past_pose))
     x, y, z = transform_columns(check_points(past_points, "past points"), relative_pose(current_pose, past_pose))
     return project_range_columns(x, y, z, sensor)
 
