@@ -15,6 +15,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
+from ros2_mos.core import kernels  # noqa: E402
 from ros2_mos.core.config import SensorConfig  # noqa: E402
 
 TEST_SENSOR = SensorConfig(
@@ -70,3 +71,15 @@ def make_wrong_channels_model(path: Path) -> Path:
 @pytest.fixture(scope="session")
 def tiny_model_path(tmp_path_factory) -> Path:
     return make_threshold_model(tmp_path_factory.mktemp("models") / "threshold.onnx")
+
+
+@pytest.fixture(params=["compiled", "numpy"])
+def geometry_code(request):
+    """Runs a test on the compiled kernels and again on the numpy code (``kernels.disabled``)."""
+    if request.param == "numpy":
+        with kernels.disabled():
+            yield request.param
+    else:
+        if not kernels.enabled():
+            pytest.skip(kernels.status())
+        yield request.param

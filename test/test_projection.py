@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 
-from ros2_mos.core import kernels
 from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ScanError
 from ros2_mos.core.postprocess import nearest_backproject
@@ -14,17 +13,8 @@ from ros2_mos.core.projection import azimuth, finite_mask, pixel_index, project,
 # 10 rows of 1 degree each from +5 to -5 deg, 8 columns of 45 degrees.
 SENSOR = SensorConfig("test", height=10, width=8, fov_up_deg=5.0, fov_down_deg=-5.0, min_range=0.0, max_range=100.0)
 
-
-@pytest.fixture(autouse=True, params=["compiled", "numpy"])
-def geometry_code(request):
-    """Every test here runs on the compiled kernels and on the numpy code (test_kernels.py: bit-identical)."""
-    if request.param == "numpy":
-        with kernels.disabled():
-            yield request.param
-    else:
-        if not kernels.enabled():
-            pytest.skip(kernels.status())
-        yield request.param
+# Every test here runs on the compiled kernels and on the numpy code (conftest.geometry_code).
+pytestmark = pytest.mark.usefixtures("geometry_code")
 
 
 def at(azimuth_deg: float, elevation_deg: float, r: float = 10.0) -> list[float]:

@@ -59,17 +59,6 @@ def pose_error(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(d[:3, 3])), math.degrees(math.acos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
 
 
-@pytest.fixture(params=["compiled", "numpy"])
-def geometry_code(request):
-    if request.param == "numpy":
-        with kernels.disabled():
-            yield
-    else:
-        if not kernels.enabled():
-            pytest.skip(kernels.status())
-        yield
-
-
 def test_normals_of_a_wall_point_at_the_wall_and_are_zero_where_there_is_no_plane(geometry_code):
     image = scan_at(room(), pose(0.0))
     normals = normal_planes(image.planes, image.range).reshape(3, SENSOR.height, SENSOR.width)
@@ -83,15 +72,21 @@ def test_normals_of_a_wall_point_at_the_wall_and_are_zero_where_there_is_no_plan
     assert abs(normals[1, 0, SENSOR.width // 4]) == pytest.approx(1.0, abs=1e-3)
 
 
-def test_compiled_and_numpy_code_agree():
+def scans_for_comparison(current_pose: np.ndarray, stride: int):
+    """The current scan, the past one (at the origin), its normals and every ``stride``-th current pixel; fails
+    where the compiled kernels are not in use (there is nothing to compare then)."""
     if not kernels.enabled():
         pytest.fail(kernels.status())
     world = room()
-    current, past = scan_at(world, pose(0.3, 0.1, 0.5)), scan_at(world, pose(0.0))
-    normals = normal_planes(past.planes, past.range)
+    current, past = scan_at(world, current_pose), scan_at(world, pose(0.0))
+    points = np.flatnonzero(current.mask.reshape(-1))[::stride]
+    return current, past, normal_planes(past.planes, past.range), points
+
+
+def test_compiled_and_numpy_code_agree():
+    current, past, normals, points = scans_for_comparison(pose(0.3, 0.1, 0.5), 3)
     with kernels.disabled():
         np.testing.assert_array_equal(normal_planes(past.planes, past.range), normals)
-    points = np.flatnonzero(current.mask.reshape(-1))[::3]
     guess = pose(0.25, 0.05, 0.3)
     got = plane_icp_sums(current.planes, points, guess, SENSOR, past.planes, normals, 0.3)
     with kernels.disabled():
@@ -103,12 +98,7 @@ def test_compiled_and_numpy_code_agree():
 
 
 def test_compiled_gauss_newton_loop_matches_the_numpy_loop():
-    if not kernels.enabled():
-        pytest.fail(kernels.status())
-    world = room()
-    current, past = scan_at(world, pose(0.6, 0.1, 0.8)), scan_at(world, pose(0.0))
-    normals = normal_planes(past.planes, past.range)
-    points = np.flatnonzero(current.mask.reshape(-1))[::4]
+    current, past, normals, points = scans_for_comparison(pose(0.6, 0.1, 0.8), 4)
     start = pose(0.5, 0.15, 0.4)
     for iterations in (1, 3, 10):
         got = refine_to_past(start, current.planes, points, past.planes, normals, SENSOR, iterations, 0.3)

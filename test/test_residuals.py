@@ -3,23 +3,13 @@
 import numpy as np
 import pytest
 
-from ros2_mos.core import kernels
 from ros2_mos.core.config import ResidualConfig, SensorConfig
 from ros2_mos.core.residuals import past_range_image, residual_image, residual_images, transform_points
 
 SENSOR = SensorConfig("t", 32, 256, 10.0, -20.0, 0.0, 100.0)
 
-
-@pytest.fixture(autouse=True, params=["compiled", "numpy"])
-def geometry_code(request):
-    """Every test here runs on the compiled kernels and on the numpy code (test_kernels.py: bit-identical)."""
-    if request.param == "numpy":
-        with kernels.disabled():
-            yield request.param
-    else:
-        if not kernels.enabled():
-            pytest.skip(kernels.status())
-        yield request.param
+# Every test here runs on the compiled kernels and on the numpy code (conftest.geometry_code).
+pytestmark = pytest.mark.usefixtures("geometry_code")
 WINDOW = ResidualConfig(2.0, 50.0)
 
 

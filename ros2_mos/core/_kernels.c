@@ -174,25 +174,34 @@ void mos_project(const float *x, const float *y, const float *z, int64_t stride,
         project_strided(x, y, z, stride, n, t, s, u, v, range, in_image, best, winner);
 }
 
+/* The k (<= BLOCK) points at the flat pixels `pixels` of the planes x, y, z, moved by t and projected: their
+ * coordinates (bx, by, bz), range, pixel and whether they lie inside. */
+static inline void gathered_block(const float *x, const float *y, const float *z, const int64_t *pixels, int64_t k,
+                                  const float *t, const MosSensor *s, float *bx, float *by, float *bz, float *range,
+                                  int32_t *u, int32_t *v, uint8_t *inside) {
+    float gx[BLOCK], gy[BLOCK], gz[BLOCK];
+    for (int64_t i = 0; i < k; ++i) {
+        const int64_t p = pixels[i];
+        gx[i] = x[p];
+        gy[i] = y[p];
+        gz[i] = z[p];
+    }
+    transform_block(gx, gy, gz, 1, k, t, bx, by, bz);
+    pixel_block(bx, by, bz, k, s, u, v, range, inside);
+}
+
 /* residuals.free_space_image over the flat pixels `occupied` (m of them) of an image whose points lie in
  * the planes x, y, z (H*W each): each point moved by t into the past scan's frame and compared with the
  * range the past scan measured there, (r_j(q) - |q|) / |q|, where both lie in (lo, hi); out (H*W) must be
  * zero-filled and keeps 0 elsewhere. */
 void mos_free_space(const float *x, const float *y, const float *z, const int64_t *occupied, int64_t m,
                     const float *t, const MosSensor *s, const float *past_range, float lo, float hi, float *out) {
-    float gx[BLOCK], gy[BLOCK], gz[BLOCK], bx[BLOCK], by[BLOCK], bz[BLOCK], here[BLOCK];
+    float bx[BLOCK], by[BLOCK], bz[BLOCK], here[BLOCK];
     int32_t bu[BLOCK], bv[BLOCK];
     uint8_t inside[BLOCK];
     for (int64_t start = 0; start < m; start += BLOCK) {
         const int64_t k = m - start < BLOCK ? m - start : BLOCK;
-        for (int64_t i = 0; i < k; ++i) {
-            const int64_t p = occupied[start + i];
-            gx[i] = x[p];
-            gy[i] = y[p];
-            gz[i] = z[p];
-        }
-        transform_block(gx, gy, gz, 1, k, t, bx, by, bz);
-        pixel_block(bx, by, bz, k, s, bu, bv, here, inside);
+        gathered_block(x, y, z, occupied + start, k, t, s, bx, by, bz, here, bu, bv, inside);
         for (int64_t i = 0; i < k; ++i) {
             if (!inside[i]) continue;
             float seen = past_range[(int64_t)bv[i] * s->width + bu[i]];
@@ -255,7 +264,7 @@ int64_t mos_plane_icp_sums(const float *x, const float *y, const float *z, const
                            const float *nxp, const float *nyp, const float *nzp, float plane_limit,
                            float point_limit, float huber, double *hessian, double *gradient, double *cost) {
     const double point_limit2 = (double)point_limit * (double)point_limit;
-    float gx[BLOCK], gy[BLOCK], gz[BLOCK], bx[BLOCK], by[BLOCK], bz[BLOCK], br[BLOCK];
+    float bx[BLOCK], by[BLOCK], bz[BLOCK], br[BLOCK];
     int32_t bu[BLOCK], bv[BLOCK];
     uint8_t inside[BLOCK];
     const int64_t w = s->width;
@@ -264,14 +273,7 @@ int64_t mos_plane_icp_sums(const float *x, const float *y, const float *z, const
     double hs[21] = {0}, gs[6] = {0}, cs = 0.0;
     for (int64_t start = 0; start < m; start += BLOCK) {
         const int64_t k = m - start < BLOCK ? m - start : BLOCK;
-        for (int64_t i = 0; i < k; ++i) {
-            const int64_t p = points[start + i];
-            gx[i] = x[p];
-            gy[i] = y[p];
-            gz[i] = z[p];
-        }
-        transform_block(gx, gy, gz, 1, k, t, bx, by, bz);
-        pixel_block(bx, by, bz, k, s, bu, bv, br, inside);
+        gathered_block(x, y, z, points + start, k, t, s, bx, by, bz, br, bu, bv, inside);
         for (int64_t i = 0; i < k; ++i) {
             if (!inside[i]) continue;
             const int64_t p0 = (int64_t)bv[i] * w + bu[i];

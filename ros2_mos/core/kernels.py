@@ -273,20 +273,26 @@ def normals(planes: np.ndarray, range_image: np.ndarray) -> np.ndarray:
     return out
 
 
+def _icp_arrays(planes: np.ndarray, points: np.ndarray, sensor: SensorConfig, past_planes: np.ndarray,
+                past_normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The registration kernels' arrays, contiguous and of their types, their shapes checked."""
+    planes = np.ascontiguousarray(planes, dtype=np.float32)
+    past_planes = np.ascontiguousarray(past_planes, dtype=np.float32)
+    past_normals = np.ascontiguousarray(past_normals, dtype=np.float32)
+    npix = sensor.height * sensor.width
+    if planes.shape != (3, npix) or past_planes.shape != (3, npix) or past_normals.shape != (3, npix):
+        raise ValueError(f"plane ICP: planes {planes.shape}, {past_planes.shape} and normals {past_normals.shape}, "
+                         f"sensor {sensor.height} x {sensor.width}")
+    return planes, np.ascontiguousarray(points, dtype=np.int64), past_planes, past_normals
+
+
 def plane_icp_sums(planes: np.ndarray, points: np.ndarray, transform: np.ndarray, sensor: SensorConfig,
                    past_planes: np.ndarray, past_normals: np.ndarray, plane_limit: float, point_limit: float,
                    huber: float) -> tuple[np.ndarray, np.ndarray, float, int]:
     """``registration.plane_icp_sums`` (hessian, gradient, cost, pairs) in one pass: ``planes``, ``past_planes`` and
     ``past_normals`` (3, H*W) float32 hold the current and the past scan's own points and the past normals,
     ``points`` the flat current pixels to use."""
-    planes = np.ascontiguousarray(planes, dtype=np.float32)
-    past_planes = np.ascontiguousarray(past_planes, dtype=np.float32)
-    past_normals = np.ascontiguousarray(past_normals, dtype=np.float32)
-    points = np.ascontiguousarray(points, dtype=np.int64)
-    npix = sensor.height * sensor.width
-    if planes.shape != (3, npix) or past_planes.shape != (3, npix) or past_normals.shape != (3, npix):
-        raise ValueError(f"plane ICP: planes {planes.shape}, {past_planes.shape} and normals {past_normals.shape}, "
-                         f"sensor {sensor.height} x {sensor.width}")
+    planes, points, past_planes, past_normals = _icp_arrays(planes, points, sensor, past_planes, past_normals)
     hessian = np.zeros((6, 6), np.float64)
     gradient = np.zeros(6, np.float64)
     cost = np.zeros(1, np.float64)
@@ -306,14 +312,7 @@ def refine(planes: np.ndarray, points: np.ndarray, transform: np.ndarray, sensor
            huber: float, damping: float, min_pairs: int, converged: tuple[float, float]) -> np.ndarray | None:
     """``registration.refine_to_past``'s Gauss-Newton loop in one call: the refined 4x4 transform, or None where a
     step had too few pairs or singular equations."""
-    planes = np.ascontiguousarray(planes, dtype=np.float32)
-    past_planes = np.ascontiguousarray(past_planes, dtype=np.float32)
-    past_normals = np.ascontiguousarray(past_normals, dtype=np.float32)
-    points = np.ascontiguousarray(points, dtype=np.int64)
-    npix = sensor.height * sensor.width
-    if planes.shape != (3, npix) or past_planes.shape != (3, npix) or past_normals.shape != (3, npix):
-        raise ValueError(f"plane ICP: planes {planes.shape}, {past_planes.shape} and normals {past_normals.shape}, "
-                         f"sensor {sensor.height} x {sensor.width}")
+    planes, points, past_planes, past_normals = _icp_arrays(planes, points, sensor, past_planes, past_normals)
     pose = np.array(transform, dtype=np.float64, order="C")
     if pose.shape != (4, 4):
         raise ValueError(f"a 4x4 transform, got {pose.shape}")
