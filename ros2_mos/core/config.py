@@ -239,6 +239,9 @@ class RegistrationConfig:
     point_stride: int = knob(32, "every n-th point of the current scan takes part in it", min=1, max=64)
     max_error: float = knob(0.3, "pairs farther from the past scan's surface are left out (m)", min=0.0, above=True,
                             max=5.0)
+    # Exact (simulated) poses lost 0.3-0.7 IoU to it (benchmarks/experiments.md, row 21).
+    refine_given_poses: bool = knob(False, "also refine poses given with the scans (`--use-poses`); off: they are "
+                                           "used as they are")
 
     def __post_init__(self) -> None:
         check_knobs(self, "registration")

@@ -259,9 +259,10 @@ class MosPipeline:
         notes = _Notes()
         self._check_stream(scan, image, timestamp, notes)
         watch.lap("validate")
+        given = pose is not None
         pose = self._pose(scan.xyz, pose, timestamp, notes)
         watch.lap("odometry")
-        past = self._registered(image, pose, self.buffer.newest_first())
+        past = self._registered(image, pose, self.buffer.newest_first(), given)
         watch.lap("registration")
         residuals, network_past = self._past_inputs(image, pose, past)
         watch.lap("residuals")
@@ -343,17 +344,19 @@ class MosPipeline:
                 notes.reset = True
         return pose
 
-    def _registered(self, image: RangeImage, pose: np.ndarray, past: list[BufferedScan]) -> list[BufferedScan]:
+    def _registered(self, image: RangeImage, pose: np.ndarray, past: list[BufferedScan],
+                    given: bool) -> list[BufferedScan]:
         """The buffered scans, those at the model's offsets with poses that give the registered relative poses.
 
         Sets ``self._registered_pose`` (this scan's pose on the registered trajectory) and ``self._normals`` (its
-        normals, for when it is a past scan); ``_remember`` keeps both.
+        normals, for when it is a past scan); ``_remember`` keeps both. A pose given with the scan is used as it is
+        unless ``registration.refine_given_poses``.
         """
         self._registered_pose = pose
         if not self._registers:
             return past
         self._normals = normal_planes(image.planes, image.range)
-        if not past:
+        if not past or (given and not self.config.registration.refine_given_poses):
             return past
         at = sorted({0} | {o - 1 for o in self.setup.offsets if o <= len(past)})
         self._registered_pose, to_past = register_to_past(
