@@ -170,29 +170,26 @@ def _coordinates(points: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray])
 
 
 def project(points: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray], sensor: SensorConfig,
-            transform: np.ndarray | None = None, pixels: bool = True, closest: bool = False,
-            ) -> tuple[Pixels | None, np.ndarray | None, np.ndarray | None]:
-    """Project (N, 3) points, or three coordinate columns, moved by ``transform`` first when given, in one pass.
+            closest: bool = False) -> tuple[Pixels, np.ndarray | None, np.ndarray | None]:
+    """Project (N, 3) points, or three coordinate columns, in one pass.
 
-    Returns ``(u, v, range, in_image)`` when ``pixels`` (else None), and when ``closest`` the (H*W,) closest
-    range per pixel (+inf where empty) and the index of that point (-1 where empty); else None, None.
+    Returns ``(u, v, range, in_image)``, and when ``closest`` the (H*W,) closest range per pixel (+inf where
+    empty) and the index of that point (-1 where empty); else None, None.
     """
     coords, stride, n = _coordinates(points)
-    t = _transform(transform)
-    u = v = rng = inside = best = winner = None
-    if pixels:
-        u = np.empty(n, np.int32)
-        v = np.empty(n, np.int32)
-        rng = np.empty(n, np.float32)
-        inside = np.empty(n, np.bool_)
+    u = np.empty(n, np.int32)
+    v = np.empty(n, np.int32)
+    rng = np.empty(n, np.float32)
+    inside = np.empty(n, np.bool_)
+    best = winner = None
     if closest:
         best = np.full(sensor.height * sensor.width, np.inf, np.float32)
         winner = np.full(sensor.height * sensor.width, -1, np.int32)
     assert _LIB is not None
-    _LIB.mos_project(coords[0].ctypes.data, coords[1].ctypes.data, coords[2].ctypes.data, stride, n, _ptr(t),
-                     ctypes.byref(_sensor(sensor)), _ptr(u), _ptr(v), _ptr(rng), _ptr(inside), _ptr(best),
-                     _ptr(winner))
-    return ((u, v, rng, inside) if pixels else None), best, winner
+    _LIB.mos_project(coords[0].ctypes.data, coords[1].ctypes.data, coords[2].ctypes.data, stride, n, None,
+                     ctypes.byref(_sensor(sensor)), u.ctypes.data, v.ctypes.data, rng.ctypes.data,
+                     inside.ctypes.data, _ptr(best), _ptr(winner))
+    return (u, v, rng, inside), best, winner
 
 
 def range_image(points: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray], sensor: SensorConfig,

@@ -215,8 +215,6 @@ class MosPipeline:
         self._sensor_mismatch: str | None = None  # None: not checked yet
         # Scan-to-scan registration before the residuals (core/registration.py); residual models only.
         self._registers = self.setup.kind == "residual" and config.registration.iterations > 0
-        self._registered_pose = np.eye(4)  # the last scan's pose on the registered trajectory
-        self._normals: np.ndarray | None = None  # the last scan's normals (registration)
 
     @property
     def n_past(self) -> int:
@@ -262,7 +260,7 @@ class MosPipeline:
         given = pose is not None
         pose = self._pose(scan.xyz, pose, timestamp, notes)
         watch.lap("odometry")
-        past = self._registered(image, pose, self.buffer.newest_first(), given)
+        past, registered_pose = self._registered(image, pose, self.buffer.newest_first(), given)
         watch.lap("registration")
         residuals, network_past = self._past_inputs(image, pose, past)
         watch.lap("residuals")
@@ -273,7 +271,7 @@ class MosPipeline:
         prob_image, point_prob = self._postprocess(prob_image, image)
         moving = point_prob >= self.threshold
         watch.lap("postprocess")
-        self._remember(scan, image, pose, timestamp, moving, prob_image >= self.threshold)
+        self._remember(scan, image, pose, registered_pose, timestamp, moving, prob_image >= self.threshold)
         watch.lap("map_update")
         watch.total()
         return MosResult(
@@ -345,28 +343,23 @@ class MosPipeline:
         return pose
 
     def _registered(self, image: RangeImage, pose: np.ndarray, past: list[BufferedScan],
-                    given: bool) -> list[BufferedScan]:
-        """The buffered scans, those at the model's offsets with poses that give the registered relative poses.
+                    given: bool) -> tuple[list[BufferedScan], np.ndarray]:
+        """The buffered scans, those at the model's offsets with poses that give the registered relative poses;
+        and this scan's pose on the registered trajectory.
 
-        Sets ``self._registered_pose`` (this scan's pose on the registered trajectory) and ``self._normals`` (its
-        normals, for when it is a past scan); ``_remember`` keeps both. A pose given with the scan is used as it is
-        unless ``registration.refine_given_poses``.
+        A pose given with the scan is used as it is unless ``registration.refine_given_poses``.
         """
-        self._registered_pose = pose
-        if not self._registers:
-            return past
-        self._normals = normal_planes(image.planes, image.range)
-        if not past or (given and not self.config.registration.refine_given_poses):
-            return past
+        if not self._registers or not past or (given and not self.config.registration.refine_given_poses):
+            return past, pose
         at = sorted({0} | {o - 1 for o in self.setup.offsets if o <= len(past)})
-        self._registered_pose, to_past = register_to_past(
+        registered_pose, to_past = register_to_past(
             pose, image.planes, image.mask,
             [(past[i].xyz_planes, past[i].normals, past[i].pose, past[i].registered_pose) for i in at],
             self.sensor, self.config.registration)
         out = list(past)
         for i, transform in zip(at, to_past):
             out[i] = dataclasses.replace(past[i], pose=pose @ np.linalg.inv(transform))
-        return out
+        return out, registered_pose
 
     def _past_inputs(self, image: RangeImage, pose: np.ndarray,
                      past: list[BufferedScan]) -> tuple[np.ndarray, np.ndarray | list[RangeImage]]:
@@ -401,15 +394,17 @@ class MosPipeline:
         return prob_image, self.geometry.knn(prob_image, image.range, image.pixels, self.config.postprocess,
                                              self.threshold)
 
-    def _remember(self, scan: "_Scan", image: RangeImage, pose: np.ndarray, timestamp: float,
-                  moving: np.ndarray, moving_pixels: np.ndarray) -> None:
+    def _remember(self, scan: "_Scan", image: RangeImage, pose: np.ndarray, registered_pose: np.ndarray,
+                  timestamp: float, moving: np.ndarray, moving_pixels: np.ndarray) -> None:
         """The odometry map takes the scan (all of it, or its static points) and the buffer keeps it.
 
-        Its normals are kept without the pixels labelled moving: later scans register against its static surfaces
-        only (in a traffic jam the movers are most of what is near).
+        For the registration of later scans it keeps its normals too, without the pixels labelled moving: later
+        scans register against its static surfaces only (in a traffic jam the movers are most of what is near).
         """
-        if self._normals is not None:
-            self._normals[:, np.flatnonzero(moving_pixels)] = 0.0
+        normals = None
+        if self._registers:
+            normals = normal_planes(image.planes, image.range)
+            normals[:, np.flatnonzero(moving_pixels)] = 0.0
         if self.config.odometry.map_update == "static":
             self.odometry.update_map(scan.xyz[~moving])
         else:
@@ -417,7 +412,6 @@ class MosPipeline:
         self.buffer.push(BufferedScan(points=scan.xyz, remission=scan.remission, pose=pose, timestamp=timestamp,
                                       range_image=image.range if self.setup.free_space else None,
                                       xyz_planes=image.planes if self._registers else None,
-                                      normals=self._normals if self._registers else None,
-                                      registered_pose=self._registered_pose))
+                                      normals=normals, registered_pose=registered_pose))
         self._last_stamp = timestamp
         self._last_pose = pose

@@ -48,8 +48,14 @@ class RangeImage:
 
     @property
     def planes(self) -> np.ndarray:
-        """(3, H*W) x, y and z planes (a view where ``xyz`` is one of a (3, H, W) array, as :func:`project` makes)."""
-        return np.moveaxis(self.xyz, -1, 0).reshape(3, -1)
+        """(3, H*W) x, y and z planes: :func:`xyz_planes` of ``xyz``."""
+        return xyz_planes(self.xyz)
+
+
+def xyz_planes(xyz: np.ndarray) -> np.ndarray:
+    """(3, H*W) x, y and z planes of an (H, W, 3) image: a view when the image is one of a (3, H, W) array, as
+    :func:`project` makes it."""
+    return np.moveaxis(xyz, -1, 0).reshape(3, -1)
 
 
 def check_points(points: np.ndarray, what: str = "points") -> np.ndarray:

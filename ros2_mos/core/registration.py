@@ -27,7 +27,7 @@ import numpy as np
 from ros2_mos.core import kernels
 from ros2_mos.core.config import RegistrationConfig, SensorConfig
 from ros2_mos.core.projection import pixel_index_columns
-from ros2_mos.core.residuals import transform_columns
+from ros2_mos.core.residuals import relative_pose, transform_columns
 
 #: Pairs farther apart than this (m) are not the same surface, whatever the plane says.
 POINT_LIMIT = 1.0
@@ -164,7 +164,7 @@ def _checked(start: np.ndarray, pose: np.ndarray | None) -> tuple[np.ndarray, bo
 
 def register_to_past(pose: np.ndarray, planes: np.ndarray, mask: np.ndarray,
                      past: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], sensor: SensorConfig,
-                     config: RegistrationConfig, map_fn=map) -> tuple[np.ndarray, list[np.ndarray]]:
+                     config: RegistrationConfig) -> tuple[np.ndarray, list[np.ndarray]]:
     """This scan's pose on the registered trajectory, and its refined transform into each past scan's frame.
 
     ``pose`` is the odometry's world pose of the current scan, whose points per pixel are ``planes`` (3, H*W)
@@ -175,17 +175,11 @@ def register_to_past(pose: np.ndarray, planes: np.ndarray, mask: np.ndarray,
     """
     points = np.flatnonzero(mask.reshape(-1))[:: config.point_stride]
     prev_planes, prev_normals, prev_pose, prev_registered = past[0]
-    guess = prev_registered @ np.linalg.inv(prev_pose) @ pose
-    to_prev, _ = refine_to_past(np.linalg.inv(prev_registered) @ guess, planes, points, prev_planes, prev_normals,
-                                sensor, config.iterations, config.max_error)
+    # The odometry's increment, as the start on the registered trajectory.
+    to_prev, _ = refine_to_past(relative_pose(prev_pose, pose), planes, points, prev_planes, prev_normals, sensor,
+                                config.iterations, config.max_error)
     registered = prev_registered @ to_prev
-
-    def one(scan: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
-        past_planes, past_normals, _, past_registered = scan
-        start = np.linalg.inv(past_registered) @ registered
-        if config.other_iterations == 0:
-            return start
-        return refine_to_past(start, planes, points, past_planes, past_normals, sensor, config.other_iterations,
-                              config.max_error)[0]
-
-    return registered, [to_prev] + list(map_fn(one, past[1:]))
+    farther = [refine_to_past(relative_pose(past_registered, registered), planes, points, past_planes, past_normals,
+                              sensor, config.other_iterations, config.max_error)[0]
+               for past_planes, past_normals, _, past_registered in past[1:]]
+    return registered, [to_prev] + farther

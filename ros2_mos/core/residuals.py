@@ -28,7 +28,7 @@ import numpy as np
 
 from ros2_mos.core import kernels
 from ros2_mos.core.config import ResidualConfig, SensorConfig
-from ros2_mos.core.projection import check_points, pixel_index_columns, project_range_columns
+from ros2_mos.core.projection import check_points, pixel_index_columns, project_range_columns, xyz_planes
 
 T = TypeVar("T")
 
@@ -145,17 +145,21 @@ def free_space_image(
     ``to_past`` the 4x4 transform from the current scan's frame into the past scan's. A pixel is 0
     where its point leaves the past image or either range lies outside the residual window.
     """
+    return _free_space_against(current_xyz, current_mask, sensor, config)(past_range, to_past)
+
+
+def _free_space_against(current_xyz: np.ndarray, current_mask: np.ndarray, sensor: SensorConfig,
+                        config: ResidualConfig) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``(past_range, to_past) -> free_space_image(...)`` for this scan, with the per-scan work done once: its
+    occupied pixels, and their points (numpy) or its contiguous planes (compiled kernels)."""
     occupied = np.flatnonzero(current_mask)
+    shape = current_mask.shape
     if kernels.enabled():
-        return kernels.free_space(_planes(current_xyz), occupied, to_past, sensor, past_range, config.min_range,
-                                  config.max_range).reshape(current_mask.shape)
+        planes = np.ascontiguousarray(xyz_planes(current_xyz), dtype=np.float32)
+        return lambda past_range, to_past: kernels.free_space(
+            planes, occupied, to_past, sensor, past_range, config.min_range, config.max_range).reshape(shape)
     points = current_xyz.reshape(-1, 3)[occupied]
-    return _free_space(points, occupied, current_mask.shape, past_range, to_past, sensor, config)
-
-
-def _planes(xyz: np.ndarray) -> np.ndarray:
-    """(3, H*W) x, y and z planes of an (H, W, 3) image: a view when the image is one (``projection.project``)."""
-    return np.moveaxis(xyz, -1, 0).reshape(3, -1)
+    return lambda past_range, to_past: _free_space(points, occupied, shape, past_range, to_past, sensor, config)
 
 
 def _free_space(points: np.ndarray, occupied: np.ndarray, shape: tuple[int, ...], past_range: np.ndarray,
@@ -195,22 +199,10 @@ def free_space_images(
     chosen = scans_at_offsets(past_scans, offsets)
     if not chosen:
         return out
-    occupied = np.flatnonzero(current_mask)
-    if kernels.enabled():
-        planes = np.ascontiguousarray(_planes(current_xyz), dtype=np.float32)
-
-        def fused(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-            return kernels.free_space(planes, occupied, relative_pose(scan[1], current_pose), sensor, scan[0],
-                                      config.min_range, config.max_range).reshape(current_mask.shape)
-
-        for j, image in enumerate(map_fn(fused, chosen)):
-            out[j] = image
-        return out
-    points = current_xyz.reshape(-1, 3)[occupied]
+    against = _free_space_against(current_xyz, current_mask, sensor, config)
 
     def one(scan: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        return _free_space(points, occupied, current_mask.shape, scan[0], relative_pose(scan[1], current_pose),
-                           sensor, config)
+        return against(scan[0], relative_pose(scan[1], current_pose))
 
     for j, image in enumerate(map_fn(one, chosen)):
         out[j] = image
