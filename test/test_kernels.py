@@ -16,6 +16,7 @@ from ros2_mos.core import kernels
 from ros2_mos.core.config import SENSOR_PRESETS, ResidualConfig, SensorConfig
 from ros2_mos.core.projection import pixel_index, pixel_index_columns, project, project_range
 from ros2_mos.core.residuals import free_space_image, free_space_images, past_range_image, residual_image
+from ros2_mos.core.segments import connected_regions, grow_regions
 
 WINDOW = ResidualConfig(2.0, 50.0)
 SENSORS = list(SENSOR_PRESETS.values()) + [
@@ -100,6 +101,25 @@ def test_residuals_and_free_space_are_bit_identical(signed):
     assert not got[2].any()  # no third past scan: zero
 
 
+@pytest.mark.parametrize("sensor", [SENSOR_PRESETS["hdl64"], SENSOR_PRESETS["vlp16"], SENSORS[-1]],
+                         ids=lambda s: s.name)
+def test_connected_regions_are_the_same_labels(sensor):
+    image = project(scan(3), np.zeros(len(scan(3)), np.float32), sensor)
+    valid = image.range > 0
+    valid[:, ::7] = False  # gaps that split regions
+    got, want = both(lambda: connected_regions(valid, image.range, rel=0.05))
+    np.testing.assert_array_equal(got, want)
+    assert len(np.unique(got[got >= 0])) > 10 and (got[~valid] == -1).all()
+    # Pixels of one region carry its smallest pixel id.
+    ids = np.arange(valid.size).reshape(valid.shape)
+    assert (got[valid] <= ids[valid]).all() and (got[valid][got[valid] == ids[valid]]).size > 0
+    seeds = np.random.default_rng(4).random(valid.shape) < 0.2
+    for fraction in (0.0, 0.2, 0.5, 1.0):
+        grown, reference = both(lambda: grow_regions(seeds, got, fraction))
+        np.testing.assert_array_equal(grown, reference)
+        assert grown.any() and not grown[~valid].any()
+
+
 def test_disabled_runs_the_numpy_code_and_status_says_which():
     assert kernels.enabled(), kernels.status()
     assert kernels.status() == "compiled kernels"
@@ -131,3 +151,5 @@ def test_bad_shapes_raise():
                            np.zeros((16, 1024), np.float32), 2.0, 50.0)
     with pytest.raises(ValueError, match="shapes"):
         kernels.residual(np.zeros((2, 3), np.float32), np.zeros((3, 2), np.float32), 2.0, 50.0, True)
+    with pytest.raises(ValueError, match="connected regions"):
+        kernels.connected_regions(np.zeros((2, 3), bool), np.zeros((3, 2), np.float32), 0.05, 0.3)

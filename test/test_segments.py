@@ -5,7 +5,7 @@ import pytest
 
 from ros2_mos.core.config import PostprocessConfig
 from ros2_mos.core.errors import ConfigError
-from ros2_mos.core.segments import connected_regions, drop_small_regions, fill_segments
+from ros2_mos.core.segments import _tenth_percentile, connected_regions, drop_small_regions, fill_segments, ground_mask
 
 
 def scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -78,3 +78,14 @@ def test_min_region_pixels_is_checked():
     for bad in (-1, 10001, 2.5, float("nan"), True):
         with pytest.raises(ConfigError):
             PostprocessConfig(min_region_pixels=bad)
+
+
+def test_the_ground_is_below_the_tenth_percentile_of_near_z_plus_the_margin():
+    assert _tenth_percentile(np.arange(11, dtype=np.float32)) == 1.0  # hand: position 0.1 * 10 = 1
+    assert _tenth_percentile(np.array([4.0, 0.0, 2.0], np.float32)) == pytest.approx(0.4)  # 0 + (2 - 0) * 0.2
+    values = np.random.default_rng(0).normal(size=1001).astype(np.float32)
+    assert _tenth_percentile(values) == pytest.approx(float(np.percentile(values, 10)), abs=1e-6)
+    _, rng, z = scene()
+    ground = ground_mask(rng, z)
+    assert ground[6:].all() and not ground[:6].any()  # z -1.7 (10th percentile of the near pixels) + 0.3
+    assert not ground_mask(np.full((2, 2), 30.0, np.float32), np.zeros((2, 2), np.float32)).any()  # none near

@@ -22,7 +22,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 5
+#define MOS_KERNELS_ABI 6
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -432,5 +432,64 @@ void mos_residual(const float *current, const float *past, int64_t npix, float l
             if (!signed_) d = fabsf(d);
         }
         out[p] = d;
+    }
+}
+
+/* segments.connected_regions: connected components of the valid pixels of an h x w image, 4-neighbours (wrapping
+ * in azimuth) linked where |r_a - r_b| < max(min_jump, rel * min(r_a, r_b)). Union-find that always hooks the
+ * larger root onto the smaller, so that each pixel's label is the smallest pixel id of its region, as the numpy
+ * code's; -1 where not valid. */
+static inline int64_t find_root(int64_t *parent, int64_t i) {
+    while (parent[i] != i) {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    return i;
+}
+
+static inline void join(int64_t *parent, int64_t a, int64_t b) {
+    a = find_root(parent, a);
+    b = find_root(parent, b);
+    if (a < b) parent[b] = a;
+    else if (b < a) parent[a] = b;
+}
+
+static inline int close_ranges(float a, float b, float rel, float min_jump) {
+    const float limit = rel * fminf(a, b);
+    return fabsf(a - b) < fmaxf(min_jump, limit);
+}
+
+void mos_connected_regions(const uint8_t *valid, const float *range, int32_t h, int32_t w, float rel, float min_jump,
+                           int64_t *labels) {
+    const int64_t npix = (int64_t)h * w;
+    for (int64_t p = 0; p < npix; ++p) labels[p] = p;
+    for (int32_t row = 0; row < h; ++row) {
+        for (int32_t col = 0; col < w; ++col) {
+            const int64_t p = (int64_t)row * w + col;
+            if (!valid[p]) continue;
+            const int64_t right = (int64_t)row * w + (col + 1 == w ? 0 : col + 1);
+            if (valid[right] && close_ranges(range[p], range[right], rel, min_jump)) join(labels, p, right);
+            if (row + 1 < h && valid[p + w] && close_ranges(range[p], range[p + w], rel, min_jump))
+                join(labels, p, p + w);
+        }
+    }
+    for (int64_t p = 0; p < npix; ++p) labels[p] = valid[p] ? find_root(labels, p) : -1;
+}
+
+/* segments.grow_regions: out[p] = 1 where p's region (labels[p] >= 0, a pixel id as mos_connected_regions gives)
+ * holds seeds on at least `fraction` of its pixels (and on one at least). count is scratch of 2 * npix int32. */
+void mos_grow_regions(const int64_t *labels, const uint8_t *seeds, int64_t npix, double fraction, int32_t *count,
+                      uint8_t *out) {
+    int32_t *size = count, *hits = count + npix;
+    for (int64_t p = 0; p < npix; ++p) size[p] = hits[p] = 0;
+    for (int64_t p = 0; p < npix; ++p) {
+        const int64_t l = labels[p];
+        if (l < 0) continue;
+        size[l] += 1;
+        hits[l] += seeds[p] != 0;
+    }
+    for (int64_t p = 0; p < npix; ++p) {
+        const int64_t l = labels[p];
+        out[p] = l >= 0 && hits[l] > 0 && (double)hits[l] >= fraction * (double)size[l];
     }
 }

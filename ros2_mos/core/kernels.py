@@ -26,7 +26,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 5
+ABI = 6
 
 
 
@@ -90,6 +90,11 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     lib.mos_normals.argtypes = [vp, vp, vp, vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp]
     lib.mos_residual.restype = None
     lib.mos_residual.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_float, ctypes.c_float, ctypes.c_int32, vp]
+    lib.mos_connected_regions.restype = None
+    lib.mos_connected_regions.argtypes = [vp, vp, ctypes.c_int32, ctypes.c_int32, ctypes.c_float, ctypes.c_float,
+                                          vp]
+    lib.mos_grow_regions.restype = None
+    lib.mos_grow_regions.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_double, vp, vp]
     return lib, "compiled kernels"
 
 
@@ -323,3 +328,34 @@ def refine(planes: np.ndarray, points: np.ndarray, transform: np.ndarray, sensor
                             _f32(plane_limit), _f32(point_limit), _f32(huber), float(damping), int(min_pairs),
                             float(converged[0]), float(converged[1]))
     return None if steps < 0 else pose
+
+
+def connected_regions(valid: np.ndarray, range_image: np.ndarray, rel: float, min_jump: float) -> np.ndarray:
+    """``segments.connected_regions``: (H, W) int64 region labels (the smallest pixel id of each), -1 where not
+    valid."""
+    mask = np.ascontiguousarray(valid, dtype=np.bool_)
+    rng = np.ascontiguousarray(range_image, dtype=np.float32)
+    if rng.ndim != 2 or mask.shape != rng.shape:
+        raise ValueError(f"connected regions of a mask {mask.shape} and a range image {rng.shape}")
+    labels = np.empty(rng.shape, np.int64)
+    assert _LIB is not None
+    _LIB.mos_connected_regions(mask.ctypes.data, rng.ctypes.data, rng.shape[0], rng.shape[1], _f32(rel),
+                               _f32(min_jump), labels.ctypes.data)
+    return labels
+
+
+def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:
+    """``segments.grow_regions`` over :func:`connected_regions`' labels: the pixels of every region at least
+    ``seed_fraction`` of which (and one pixel at least) are seeds."""
+    labels = np.ascontiguousarray(regions, dtype=np.int64)
+    mask = np.ascontiguousarray(seeds, dtype=np.bool_)
+    if mask.shape != labels.shape:
+        raise ValueError(f"grow regions: seeds {mask.shape}, regions {labels.shape}")
+    if labels.size and (labels.max() >= labels.size or labels.min() < -1):
+        raise ValueError("grow regions: labels must be pixel ids or -1")
+    out = np.empty(labels.shape, np.bool_)
+    scratch = np.empty(2 * labels.size, np.int32)
+    assert _LIB is not None
+    _LIB.mos_grow_regions(labels.ctypes.data, mask.ctypes.data, labels.size, float(seed_fraction),
+                          scratch.ctypes.data, out.ctypes.data)
+    return out

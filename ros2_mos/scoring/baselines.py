@@ -49,7 +49,6 @@ class RegionGrowingParams:
 def region_growing(range_image: np.ndarray, z_image: np.ndarray, signed_residuals: np.ndarray,
                    params: RegionGrowingParams = RegionGrowingParams()) -> np.ndarray:
     """Residual + RG baseline on one scan: range and z images (0 = empty) and the two newest signed residuals."""
-    raw = np.stack([range_image, np.zeros_like(range_image), np.zeros_like(range_image), z_image])
-    valid = (range_image > 0) & ~ground_mask(raw)
+    valid = (range_image > 0) & ~ground_mask(range_image, z_image)
     regions = connected_regions(valid, range_image, params.rel_jump)
     return grow_regions(free_space_seeds(signed_residuals, params.tau_seed), regions, params.seed_fraction)

@@ -45,7 +45,7 @@ class ResidualRegionGrowing:
     def predict(self, cache: SequenceCache, index: int, regions: np.ndarray | None = None) -> np.ndarray:
         raw = np.asarray(cache.frame[index], np.float32)
         if regions is None:
-            valid = (raw[0] > 0) & ~ground_mask(raw)
+            valid = (raw[0] > 0) & ~ground_mask(raw[0], raw[3])
             regions = connected_regions(valid, raw[0], self.rel_jump)
         return grow_regions(self.seeds(cache, index), regions, self.seed_fraction)
 
@@ -86,7 +86,7 @@ def tune_region_growing(
     for cache in caches:
         for i in range(0, len(cache), stride):
             raw = np.asarray(cache.frame[i], np.float32)
-            valid = (raw[0] > 0) & ~ground_mask(raw)
+            valid = (raw[0] > 0) & ~ground_mask(raw[0], raw[3])
             label = np.asarray(cache.label[i])
             for rel in rel_jumps:
                 regions = connected_regions(valid, raw[0], rel)
