@@ -49,6 +49,21 @@ def _config(data_root, tmp_path, **kw) -> TrainConfig:
     return TrainConfig.from_dict(base)
 
 
+def test_a_cache_of_some_offsets_holds_those_channels_of_the_full_cache(data_root, tmp_path):
+    full = SequenceCache.build(data_root / "sequences" / "00", tmp_path / "full",
+                               CacheSpec(sensor=TEST_SENSOR, n_residual=3, n_frames=0), workers=1)
+    some_spec = CacheSpec(sensor=TEST_SENSOR, n_residual=3, n_frames=0, residual_offsets=(1, 3))
+    some = SequenceCache.build(data_root / "sequences" / "00", tmp_path / "some", some_spec, workers=1)
+    assert some.residual.shape[1] == 2 and some_spec.stored_offsets == (1, 3)
+    np.testing.assert_array_equal(np.asarray(some.residual), np.asarray(full.residual)[:, [0, 2]])
+    assert some.residual[3].any()
+    assert some_spec.serves(InputSetup("residual", 2, (1, 3), signed=True))
+    assert not some_spec.serves(InputSetup("residual", 2, (1, 2), signed=True))
+    for bad in ((0, 1), (2, 1), (1, 4), (1, 1)):
+        with pytest.raises(ConfigError, match="residual_offsets"):
+            CacheSpec(sensor=TEST_SENSOR, n_residual=3, residual_offsets=bad)
+
+
 def test_cache_matches_the_core_pipeline(data_root, tmp_path):
     spec = CacheSpec(sensor=TEST_SENSOR, n_residual=2, n_frames=1, with_points=True)
     cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=2)
@@ -100,6 +115,9 @@ def test_free_space_inputs_are_residual_inputs_with_their_own_channels():
     setup = InputSetup("residual", 3, (1, 2, 4), signed=True, image_channels=("z",), free_space=True)
     assert (setup.past_channels, setup.channels) == (6, 7)
     assert setup.label == "signed residual N=3 at 1,2,4 + free space"
+    assert setup.channel_names == ("z", "residual@1", "residual@2", "residual@4", "free_space@1", "free_space@2",
+                                   "free_space@4")
+    assert InputSetup("frames", 1).channel_names[5:7] == ("range@1", "x@1")
     for bad in (dict(kind="frames", n_past=1), dict(kind="residual", n_past=0)):
         with pytest.raises(ConfigError, match="free_space"):
             InputSetup(free_space=True, **bad)
@@ -335,7 +353,7 @@ def test_fine_tuning_starts_from_the_checkpoints_weights_and_normalisation(data_
     assert again.start_epoch == 1
     # Another network or input is refused; so is a file that is not a checkpoint.
     with pytest.raises(ConfigError, match="init_from"):
-        Trainer(_config(data_root, tmp_path / "c", n_past=3, init_from=str(tmp_path / "a" / "run" / "last.pt")),
+        Trainer(_config(data_root, tmp_path / "c", n_past=1, init_from=str(tmp_path / "a" / "run" / "last.pt")),
                 data_root, show_progress=False)
     # The same input plus free-space images: the checkpoint's weights, zero weights for the new channels.
     wider = Trainer(_config(data_root, tmp_path / "e", free_space=True,
@@ -355,6 +373,19 @@ def test_fine_tuning_starts_from_the_checkpoints_weights_and_normalisation(data_
         else:
             assert torch.equal(v, old)
     assert widened >= 1
+    # And one more offset (1, 2 -> 1, 2, 3, with free space), cached at the used offsets only: the old weights
+    # move to their channels (z.. r1 r2 [r3] f1 f2 [f3]), and the output is still the old network's.
+    wider.fit()
+    longer = Trainer(_config(data_root, tmp_path / "f", free_space=True, n_past=3, past_offsets=[1, 2, 3],
+                             cache_used_offsets_only=True, init_from=str(tmp_path / "e" / "run" / "last.pt")),
+                     data_root, show_progress=False)
+    assert longer.train_caches[0].spec.stored_offsets == (1, 2, 3)
+    x = torch.randn(1, 5 + 6, TEST_SENSOR.height, 64)
+    old_channels = [0, 1, 2, 3, 4, 5, 6, 8, 9]
+    wider.model.eval()
+    longer.model.eval()
+    with torch.no_grad():
+        torch.testing.assert_close(longer.model(x), wider.model(x[:, old_channels]))
     truncated = tmp_path / "truncated.pt"
     truncated.write_bytes((tmp_path / "a" / "run" / "last.pt").read_bytes()[:5000])
     with pytest.raises(ConfigError, match="not a readable checkpoint"):

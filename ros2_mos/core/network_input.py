@@ -111,6 +111,17 @@ class InputSetup:
         return len(self.image_channels) + self.past_channels
 
     @property
+    def channel_names(self) -> tuple[str, ...]:
+        """Each input channel in :func:`assemble_input`'s order: the image channels, then ``residual@K`` (and
+        ``free_space@K``) for K scans back, or ``C@K`` for channel C of the frame K scans back."""
+        if self.kind == "residual":
+            past = [f"residual@{o}" for o in self.offsets]
+            past += [f"free_space@{o}" for o in self.offsets] if self.free_space else []
+        else:
+            past = [f"{c}@{k}" for k in range(1, self.n_past + 1) for c in self.image_channels]
+        return (*self.image_channels, *past)
+
+    @property
     def label(self) -> str:
         """Short name as in the paper's tables."""
         if self.n_past == 0:

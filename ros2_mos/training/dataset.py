@@ -109,6 +109,8 @@ class CacheSpec:
     pose_noise: tuple[float, float] = (0.0, 0.0)  # σ of the relative pose: translation (m), rotation (deg)
     # Free-space images (ros2_mos.core.residuals.free_space_image) against the scans this many back.
     free_space_offsets: tuple[int, ...] = ()
+    # Only the residual images against the scans this many back are cached (default: 1..n_residual, every one).
+    residual_offsets: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if self.poses not in ("dataset", "kiss_icp"):
@@ -124,11 +126,23 @@ class CacheSpec:
             raise ConfigError(f"free_space_offsets must be distinct values in 1..n_residual={self.n_residual}, "
                               f"got {list(self.free_space_offsets)}")
         object.__setattr__(self, "free_space_offsets", offsets)
+        kept = tuple(int(o) for o in self.residual_offsets)
+        if any(not 1 <= o <= self.n_residual for o in kept) or list(kept) != sorted(set(kept)):
+            raise ConfigError(f"residual_offsets must be increasing values in 1..n_residual={self.n_residual}, "
+                              f"got {list(self.residual_offsets)}")
+        object.__setattr__(self, "residual_offsets", kept)
+
+    @property
+    def stored_offsets(self) -> tuple[int, ...]:
+        """The offsets of the cached residual images, in their order in ``residual.npy``."""
+        return self.residual_offsets or tuple(range(1, self.n_residual + 1))
 
     def serves(self, setup: InputSetup) -> bool:
         if setup.free_space and not set(setup.offsets) <= set(self.free_space_offsets):
             return False
-        return setup.history <= (self.n_residual if setup.kind == "residual" else self.n_frames)
+        if setup.kind == "residual":
+            return set(setup.offsets) <= set(self.stored_offsets)
+        return setup.history <= self.n_frames
 
 
 def _file_stamps(paths: Iterable[Path]) -> list[tuple[str, int, int]]:
@@ -143,8 +157,9 @@ def _cache_key(spec: CacheSpec, sequence: SemanticKittiSequence) -> str:
     """A hash of what the cache is computed from: spec, path, and every input file's name, size and mtime."""
     root = Path(sequence.root).resolve()
     described = asdict(spec)
-    if not spec.free_space_offsets:  # caches built before free-space inputs existed keep their key
-        del described["free_space_offsets"]
+    for optional in ("free_space_offsets", "residual_offsets"):  # caches built before these existed keep their key
+        if not described[optional]:
+            del described[optional]
     inputs = list(sequence.scan_files)
     for sub in ("labels",):
         if (root / sub).is_dir():
@@ -224,14 +239,18 @@ def _process_chunk(args: tuple[str, CacheSpec, np.ndarray, int, int, str]) -> in
         label_mm[i] = lab
         if res_mm is not None:
             # residual_images() of the core, unrolled for the per-pair pose noise.
-            res = np.zeros((spec.n_residual, sensor.height, sensor.width), np.float32)
+            stored = spec.stored_offsets
+            res = np.zeros((len(stored), sensor.height, sensor.width), np.float32)
             free = np.zeros((len(spec.free_space_offsets), sensor.height, sensor.width), np.float32)
             for j, s in enumerate(buffer[: spec.n_residual]):
+                if j + 1 not in stored and j + 1 not in spec.free_space_offsets:
+                    continue
                 rng = np.random.default_rng((i, j + 1, spec.n_residual))
                 moved = perturb_pose(relative_pose(scan.pose, s.pose), *spec.pose_noise, rng)
-                x, y, z = transform_columns(s.points, moved)
-                past_range = project_range_columns(x, y, z, sensor)
-                res[j] = residual_image(image.range, past_range, spec.residual, signed=True)
+                if j + 1 in stored:
+                    x, y, z = transform_columns(s.points, moved)
+                    past_range = project_range_columns(x, y, z, sensor)
+                    res[stored.index(j + 1)] = residual_image(image.range, past_range, spec.residual, signed=True)
                 if j + 1 in spec.free_space_offsets:  # the same noisy pose, the other way round
                     if i - j - 1 not in own_range:
                         own_range[i - j - 1] = project_range(s.points, sensor)
@@ -334,7 +353,8 @@ class SequenceCache:
         np.lib.format.open_memmap(directory / "frame.npy", "w+", np.float16, (s, 5, h, w)).flush()
         np.lib.format.open_memmap(directory / "label.npy", "w+", np.int8, (s, h, w)).flush()
         if spec.n_residual:
-            np.lib.format.open_memmap(directory / "residual.npy", "w+", np.float16, (s, spec.n_residual, h, w)).flush()
+            np.lib.format.open_memmap(directory / "residual.npy", "w+", np.float16,
+                                      (s, len(spec.stored_offsets), h, w)).flush()
         if spec.n_frames:
             np.lib.format.open_memmap(directory / "past.npy", "w+", np.float16, (s, 5 * spec.n_frames, h, w)).flush()
         if spec.free_space_offsets:
@@ -406,7 +426,8 @@ class MosDataset(Dataset):
     ) -> None:
         for cache in caches:
             if not cache.spec.serves(setup):
-                raise ConfigError(f"cache {cache.directory} (N={cache.spec.n_residual}) cannot serve {setup}")
+                raise ConfigError(f"cache {cache.directory} (residual offsets {list(cache.spec.stored_offsets)}, free "
+                                  f"space {list(cache.spec.free_space_offsets)}) cannot serve {setup}")
         self.caches = list(caches)
         self.setup = setup
         self.means = np.asarray(means, np.float32)
@@ -441,7 +462,7 @@ class MosDataset(Dataset):
         current = read(cache.frame[i], np.float32)
         n = self.setup.n_past
         if self.setup.kind == "residual":
-            channels = [o - 1 for o in self.setup.offsets]
+            channels = [cache.spec.stored_offsets.index(o) for o in self.setup.offsets]
             past_channels = (
                 read(cache.residual[i, channels], np.float32) if n else np.zeros((0,) + current.shape[1:], np.float32)
             )

@@ -18,9 +18,9 @@ import math
 import os
 import random
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -74,6 +74,8 @@ class TrainConfig:
     poses: str = "dataset"
     cache_dir: str = "data/cache"
     cache_n_residual: int = 8
+    # true: cache only the residual images the input uses (its offsets), not every one up to the oldest
+    cache_used_offsets_only: bool = False
     cache_n_frames: int = 1
     out_dir: str = "runs/mos"
     epochs: int = 10
@@ -162,6 +164,8 @@ class TrainConfig:
             pose_noise=((float(self.pose_noise[0]), float(self.pose_noise[1])) if len(self.pose_noise) == 2
                         else (-1.0, -1.0)),
             free_space_offsets=self.setup.offsets if self.free_space else (),
+            residual_offsets=(self.setup.offsets if self.cache_used_offsets_only and self.input_kind == "residual"
+                              else ()),
         )
 
     @classmethod
@@ -258,23 +262,37 @@ def evaluate_pixels(model: nn.Module, dataset: MosDataset, loss_fn: MosLoss | No
     return score.iou, float(np.mean(losses)) if losses else float("nan")
 
 
-def widen_input(weights: Mapping[str, torch.Tensor], target: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+def widen_input(weights: Mapping[str, torch.Tensor], target: Mapping[str, torch.Tensor],
+                placement: Sequence[int]) -> dict[str, torch.Tensor]:
     """``weights`` fitted to ``target``'s shapes where a layer reads more input channels there.
 
-    A weight of shape (out, c, ...) whose target is (out, c + k, ...) gets zero weights for the k
-    added channels (appended last), so the widened network computes exactly what the old one did
-    until training moves them. Other shape differences are left for ``load_state_dict`` to report.
+    A weight of shape (out, c, ...) whose target is (out, c + k, ...) keeps its c channels' weights at the
+    target channels ``placement`` lists (old channel i -> new channel ``placement[i]``) and gets zero weights
+    for the k added ones, so the widened network computes exactly what the old one did until training moves
+    them. Other shape differences are left for ``load_state_dict`` to report.
     """
     out = {}
     for name, value in weights.items():
         goal = target.get(name)
         if (goal is not None and value.ndim >= 2 and goal.ndim == value.ndim and goal.shape[1] > value.shape[1]
-                and goal.shape[0] == value.shape[0] and goal.shape[2:] == value.shape[2:]):
-            extra = torch.zeros((value.shape[0], goal.shape[1] - value.shape[1]) + tuple(value.shape[2:]),
-                                dtype=value.dtype)
-            value = torch.cat([value, extra], dim=1)
+                and value.shape[1] == len(placement) and goal.shape[0] == value.shape[0]
+                and goal.shape[2:] == value.shape[2:]):
+            wide = torch.zeros(goal.shape, dtype=value.dtype)
+            wide[:, list(placement)] = value
+            value = wide
         out[name] = value
     return out
+
+
+def input_placement(trained: InputSetup, setup: InputSetup) -> list[int] | None:
+    """Where each input channel of a network trained on ``trained`` sits in ``setup``'s input, when ``setup``
+    only adds channels to it (free-space images, more offsets); else None."""
+    if (trained.kind, trained.signed) != (setup.kind, setup.signed):
+        return None
+    names = setup.channel_names
+    if not set(trained.channel_names) <= set(names):
+        return None
+    return [names.index(n) for n in trained.channel_names]
 
 
 class Trainer:
@@ -335,8 +353,8 @@ class Trainer:
         self.history: list[EpochResult] = []
         if self._init_state is not None:
             weights = self._init_state["model"]
-            if self._init_state.get("widen"):
-                weights = widen_input(weights, self._raw_model().state_dict())
+            if self._init_state["placement"] != list(range(self.config.setup.channels)):
+                weights = widen_input(weights, self._raw_model().state_dict(), self._init_state["placement"])
             self._raw_model().load_state_dict(weights)
             self.log(f"fine-tuning from {self.config.init_from} (its epoch {int(self._init_state['epoch']) + 1})")
         self._maybe_resume()
@@ -348,13 +366,15 @@ class Trainer:
         path = Path(self.config.init_from)
         state = load_checkpoint(path)
         setup = self.config.setup
-        trained = dict(state.get("input") or {})
-        trained.setdefault("free_space", False)
-        widen = setup.free_space and trained == asdict(replace(setup, free_space=False))
-        if state.get("network") != self.config.network or (trained != asdict(setup) and not widen):
+        try:
+            trained = InputSetup(**dict(state.get("input") or {}))
+        except (ConfigError, TypeError):
+            trained = None
+        placement = None if trained is None else input_placement(trained, setup)
+        if state.get("network") != self.config.network or placement is None:
             raise ConfigError(f"init_from {path}: trained as {state.get('network')} {state.get('input')}, not "
-                              f"{self.config.network} {asdict(setup)}")
-        return dict(state, widen=widen)
+                              f"{self.config.network} {asdict(setup)} or a part of it")
+        return dict(state, placement=placement)
 
     def _statistics(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         if self._init_state is not None:  # the weights expect their own normalisation
