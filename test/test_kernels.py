@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from ros2_mos.core import kernels
-from ros2_mos.core.config import SENSOR_PRESETS, ResidualConfig, SensorConfig
+from ros2_mos.core.config import SENSOR_PRESETS, PostprocessConfig, ResidualConfig, SensorConfig
+from ros2_mos.core.postprocess import knn_backproject
 from ros2_mos.core.projection import pixel_index, pixel_index_columns, project, project_range
 from ros2_mos.core.residuals import free_space_image, free_space_images, past_range_image, residual_image
 from ros2_mos.core.segments import connected_regions, grow_regions
@@ -120,6 +121,19 @@ def test_connected_regions_are_the_same_labels(sensor):
         assert grown.any() and not grown[~valid].any()
 
 
+@pytest.mark.parametrize("window,k", [(5, 5), (3, 9), (7, 4)])
+def test_knn_vote_agrees(window, k):
+    pts = scan(5)
+    sensor = SENSOR_PRESETS["hdl64"]
+    image = project(pts, np.zeros(len(pts), np.float32), sensor)
+    prob = np.random.default_rng(6).random(image.range.shape).astype(np.float32) * image.mask
+    config = PostprocessConfig(k=k, window=window, cutoff=2.0)
+    for threshold in (None, 0.5):
+        got, want = both(lambda: knn_backproject(prob, image.range, image.pixels, config, threshold))
+        np.testing.assert_allclose(got, want, rtol=0, atol=2e-7)  # float32 sums in another order
+        np.testing.assert_array_equal(got >= 0.5, want >= 0.5)
+
+
 def test_disabled_runs_the_numpy_code_and_status_says_which():
     assert kernels.enabled(), kernels.status()
     assert kernels.status() == "compiled kernels"
@@ -151,5 +165,8 @@ def test_bad_shapes_raise():
                            np.zeros((16, 1024), np.float32), 2.0, 50.0)
     with pytest.raises(ValueError, match="shapes"):
         kernels.residual(np.zeros((2, 3), np.float32), np.zeros((3, 2), np.float32), 2.0, 50.0, True)
+    with pytest.raises(ValueError, match="kNN vote"):
+        kernels.knn_vote(np.zeros((2, 3), np.float32), np.zeros((2, 3), np.float32), np.array([3]), np.array([0]),
+                         np.ones(1), 3, 3, np.ones(9), 1.0, 0.5)
     with pytest.raises(ValueError, match="connected regions"):
         kernels.connected_regions(np.zeros((2, 3), bool), np.zeros((3, 2), np.float32), 0.05, 0.3)

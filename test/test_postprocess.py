@@ -1,4 +1,4 @@
-"""kNN back-projection on hand-made range images."""
+"""kNN back-projection on hand-made range images, on the compiled kernels and on the numpy code."""
 
 import numpy as np
 import pytest
@@ -16,7 +16,7 @@ def pixels(rows, cols, ranges):
     )
 
 
-def test_occluded_point_takes_the_label_of_neighbours_at_its_own_range():
+def test_occluded_point_takes_the_label_of_neighbours_at_its_own_range(geometry_code):
     # A moving pedestrian (prob 1) at 5 m covers pixel (2, 2); behind it a wall at 20 m (prob 0).
     rows, cols = np.mgrid[0:5, 0:8]
     rng = (20.0 + 0.011 * cols + 0.029 * rows).astype(np.float32)  # distinct ranges: no ties in the top k
@@ -32,7 +32,7 @@ def test_occluded_point_takes_the_label_of_neighbours_at_its_own_range():
     np.testing.assert_allclose(knn_backproject(prob, rng, pix, cfg), [1.0, 0.2])
 
 
-def test_empty_pixels_and_far_neighbours_do_not_vote():
+def test_empty_pixels_and_far_neighbours_do_not_vote(geometry_code):
     rng = np.zeros((3, 6), np.float32)
     prob = np.ones((3, 6), np.float32)
     rng[1, 3], prob[1, 3] = 10.0, 0.0
@@ -41,7 +41,7 @@ def test_empty_pixels_and_far_neighbours_do_not_vote():
     assert knn_backproject(prob, rng, pix, PostprocessConfig(k=5, window=3))[0] == 0.0
 
 
-def test_window_wraps_around_in_azimuth():
+def test_window_wraps_around_in_azimuth(geometry_code):
     rng = np.zeros((3, 6), np.float32)
     prob = np.zeros((3, 6), np.float32)
     rng[1, 0] = 10.0
@@ -64,7 +64,7 @@ def test_invalid_settings_are_rejected(kwargs):
         PostprocessConfig(**kwargs)
 
 
-def test_thresholded_knn_gives_the_same_labels_as_the_full_vote():
+def test_thresholded_knn_gives_the_same_labels_as_the_full_vote(geometry_code):
     rng = np.random.default_rng(3)
     h, w, n = 16, 64, 4000
     range_image = rng.uniform(5, 30, (h, w)).astype(np.float32)
@@ -78,3 +78,15 @@ def test_thresholded_knn_gives_the_same_labels_as_the_full_vote():
     fast = knn_backproject(prob, range_image, pix, cfg, threshold=0.5)
     np.testing.assert_array_equal(full >= 0.5, fast >= 0.5)
     assert 0 < (full >= 0.5).sum() < n
+
+
+def test_a_window_with_one_label_keeps_the_own_pixel_and_a_mixed_one_votes(geometry_code):
+    rng = np.full((3, 8), 10.0, np.float32)
+    prob = np.full((3, 8), 0.9, np.float32)
+    pix = pixels([1, 1], [2, 6], [10.0, 10.0])
+    cfg = PostprocessConfig(k=3, window=3)
+    # Every window pixel above 0.5: the point keeps its own 0.9 (a vote could not change its label).
+    assert knn_backproject(prob, rng, pix, cfg, threshold=0.5)[0] == np.float32(0.9)
+    prob[0, 7] = 0.0  # column 6's window now holds one value below: it votes (ties at 10 m: all kept)
+    got = knn_backproject(prob, rng, pix, cfg, threshold=0.5)
+    assert got[0] == np.float32(0.9) and got[1] == pytest.approx((8 * 0.9) / 9, abs=1e-6)

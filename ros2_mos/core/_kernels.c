@@ -22,7 +22,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 6
+#define MOS_KERNELS_ABI 7
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -491,5 +491,108 @@ void mos_grow_regions(const int64_t *labels, const uint8_t *seeds, int64_t npix,
     for (int64_t p = 0; p < npix; ++p) {
         const int64_t l = labels[p];
         out[p] = l >= 0 && hits[l] > 0 && (double)hits[l] >= fraction * (double)size[l];
+    }
+}
+
+/* postprocess._window_mixed: mixed[p] = 1 where the window x window pixels around p (rows clipped, columns
+ * wrapping) hold probabilities on both sides of threshold. Separable: "any below" / "any above" along the columns,
+ * then along the rows. scratch: 2 * h * w bytes. */
+static void window_mixed(const float *prob, int32_t h, int32_t w, int32_t half, float threshold, uint8_t *scratch,
+                         uint8_t *mixed) {
+    const int64_t npix = (int64_t)h * w;
+    uint8_t *below = scratch, *above = scratch + npix;
+    for (int32_t r = 0; r < h; ++r) {
+        const float *row = prob + (int64_t)r * w;
+        for (int32_t c = 0; c < w; ++c) {
+            uint8_t b = 0, a = 0;
+            for (int32_t d = -half; d <= half; ++d) {
+                int32_t cc = c + d;
+                cc = cc < 0 ? cc + w : (cc >= w ? cc - w : cc);
+                const uint8_t is_below = row[cc] < threshold;
+                b |= is_below;
+                a |= !is_below;
+            }
+            below[(int64_t)r * w + c] = b;
+            above[(int64_t)r * w + c] = a;
+        }
+    }
+    for (int32_t r = 0; r < h; ++r) {
+        const int32_t r0 = r - half < 0 ? 0 : r - half, r1 = r + half >= h ? h - 1 : r + half;
+        for (int32_t c = 0; c < w; ++c) {
+            uint8_t b = 0, a = 0;
+            for (int32_t rr = r0; rr <= r1; ++rr) {
+                b |= below[(int64_t)rr * w + c];
+                a |= above[(int64_t)rr * w + c];
+            }
+            mixed[(int64_t)r * w + c] = b & a;
+        }
+    }
+}
+
+/* postprocess.knn_backproject for n points at pixels (u, v) with ranges prange: each point's moving probability
+ * by the kNN vote over the window x window pixels around its own (rows padded with empty pixels, columns
+ * wrapping), the float32 arithmetic of the numpy code (sums in another order: equal to ~1e-7). With use_threshold,
+ * a point whose window holds no probability on one side of threshold keeps its own pixel's probability (the vote
+ * could not change its label). weights: the window's inverse Gaussian, window * window floats; scratch: 3 * h * w
+ * bytes (with use_threshold). */
+#define MOS_EMPTY_RANGE 1e9f
+void mos_knn_vote(const float *prob, const float *range, int32_t h, int32_t w, const int32_t *u, const int32_t *v,
+                  const float *prange, int64_t n, int32_t window, int32_t k, const float *weights, float cutoff,
+                  float threshold, int32_t use_threshold, uint8_t *scratch, float *out) {
+    const int32_t half = window / 2, cells = window * window, center = cells / 2;
+    float dist[225], smallest[225], probs[225];
+    uint8_t *mixed = NULL;
+    if (use_threshold) {
+        mixed = scratch + 2 * (int64_t)h * w;
+        window_mixed(prob, h, w, half, threshold, scratch, mixed);
+    }
+    for (int64_t i = 0; i < n; ++i) {
+        const int32_t pu = u[i], pv = v[i];
+        if (mixed != NULL && !mixed[(int64_t)pv * w + pu]) {
+            out[i] = prob[(int64_t)pv * w + pu];
+            continue;
+        }
+        const float own = prange[i];
+        int32_t j = 0;
+        for (int32_t dr = -half; dr <= half; ++dr) {
+            const int32_t r = pv + dr;
+            for (int32_t dc = -half; dc <= half; ++dc, ++j) {
+                int32_t c = pu + dc;
+                c = c < 0 ? c + w : (c >= w ? c - w : c);
+                float rr = MOS_EMPTY_RANGE, p = 0.0f;
+                if (r >= 0 && r < h) {
+                    const float here = range[(int64_t)r * w + c];
+                    rr = here > 0.0f ? here : MOS_EMPTY_RANGE;
+                    p = prob[(int64_t)r * w + c];
+                }
+                dist[j] = fabsf(rr - own) * weights[j];
+                probs[j] = p;
+            }
+        }
+        dist[center] = -1.0f;
+        float kth = INFINITY;
+        if (k < cells) {  /* the k-th smallest distance: the k smallest kept in order (k <= 225) */
+            int32_t kept = 0;
+            for (int32_t a = 0; a < cells; ++a) {
+                const float d = dist[a];
+                if (kept == k && !(d < smallest[k - 1])) continue;
+                int32_t at = kept < k ? kept++ : k - 1;
+                while (at > 0 && smallest[at - 1] > d) {
+                    smallest[at] = smallest[at - 1];
+                    --at;
+                }
+                smallest[at] = d;
+            }
+            kth = smallest[k - 1];
+        }
+        float total = 0.0f;
+        int32_t count = 0;
+        for (int32_t a = 0; a < cells; ++a) {
+            if (dist[a] <= kth && dist[a] <= cutoff) {
+                total += probs[a];
+                ++count;
+            }
+        }
+        out[i] = (float)((double)total / (double)count);
     }
 }

@@ -26,7 +26,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 6
+ABI = 7
 
 
 
@@ -95,6 +95,9 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
                                           vp]
     lib.mos_grow_regions.restype = None
     lib.mos_grow_regions.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_double, vp, vp]
+    lib.mos_knn_vote.restype = None
+    lib.mos_knn_vote.argtypes = [vp, vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_int64, ctypes.c_int32,
+                                 ctypes.c_int32, vp, ctypes.c_float, ctypes.c_float, ctypes.c_int32, vp, vp]
     return lib, "compiled kernels"
 
 
@@ -358,4 +361,30 @@ def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -
     assert _LIB is not None
     _LIB.mos_grow_regions(labels.ctypes.data, mask.ctypes.data, labels.size, float(seed_fraction),
                           scratch.ctypes.data, out.ctypes.data)
+    return out
+
+
+def knn_vote(prob_image: np.ndarray, range_image: np.ndarray, u: np.ndarray, v: np.ndarray, point_range: np.ndarray,
+             window: int, k: int, weights: np.ndarray, cutoff: float, threshold: float | None) -> np.ndarray:
+    """``postprocess.knn_backproject``: (N,) float32 moving probability of the points at pixels (``u``, ``v``)."""
+    prob = np.ascontiguousarray(prob_image, dtype=np.float32)
+    rng = np.ascontiguousarray(range_image, dtype=np.float32)
+    cols = np.ascontiguousarray(u, dtype=np.int32)
+    rows = np.ascontiguousarray(v, dtype=np.int32)
+    ranges = np.ascontiguousarray(point_range, dtype=np.float32)
+    gauss = np.ascontiguousarray(weights, dtype=np.float32)
+    if rng.ndim != 2 or prob.shape != rng.shape or not len(cols) == len(rows) == len(ranges):
+        raise ValueError(f"kNN vote: probabilities {prob.shape}, ranges {rng.shape}, {len(cols)} / {len(rows)} / "
+                         f"{len(ranges)} pixels")
+    if window % 2 != 1 or not 1 <= window <= 15 or gauss.size != window * window or not 1 <= k <= window * window:
+        raise ValueError(f"kNN vote: window {window}, k {k}, {gauss.size} weights")
+    h, w = rng.shape
+    if len(cols) and (cols.min() < 0 or cols.max() >= w or rows.min() < 0 or rows.max() >= h):
+        raise ValueError("kNN vote: pixels outside the image")
+    out = np.empty(len(cols), np.float32)
+    scratch = np.empty(3 * h * w if threshold is not None else 1, np.uint8)
+    assert _LIB is not None
+    _LIB.mos_knn_vote(prob.ctypes.data, rng.ctypes.data, h, w, cols.ctypes.data, rows.ctypes.data, ranges.ctypes.data,
+                      len(cols), window, k, gauss.ctypes.data, _f32(cutoff), _f32(threshold or 0.0),
+                      int(threshold is not None), scratch.ctypes.data, out.ctypes.data)
     return out
