@@ -12,6 +12,7 @@
 #include <math.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 /* On x86-64 with GCC, the per-point arithmetic is also built for AVX2 and picked at load time (the same
  * operations, so the same results); elsewhere the compiler's baseline vectors serve. */
@@ -536,63 +537,117 @@ static void window_mixed(const float *prob, int32_t h, int32_t w, int32_t half, 
  * could not change its label). weights: the window's inverse Gaussian, window * window floats; scratch: 3 * h * w
  * bytes (with use_threshold). */
 #define MOS_EMPTY_RANGE 1e9f
-void mos_knn_vote(const float *prob, const float *range, int32_t h, int32_t w, const int32_t *u, const int32_t *v,
-                  const float *prange, int64_t n, int32_t window, int32_t k, const float *weights, float cutoff,
-                  float threshold, int32_t use_threshold, uint8_t *scratch, float *out) {
+#define MOS_LANES 8
+/* MOS_LANES floats, and a lane mask, as GCC / Clang vector types (SSE, AVX or NEON registers, or scalars). */
+typedef float mos_lanes __attribute__((vector_size(4 * MOS_LANES)));
+typedef int32_t mos_mask __attribute__((vector_size(4 * MOS_LANES)));
+
+/* Lane by lane: a where mask, else b (bit operations: the same in every lane, no branch). A macro, not a
+ * function: vector arguments would change the calling convention with the instruction set. */
+#define SELECT_LANES(mask, a, b) ((mos_lanes)(((mask) & (mos_mask)(a)) | (~(mask) & (mos_mask)(b))))
+
+/* The window of the point at (pu, pv), range own: each cell's distance (range difference times its weight) and
+ * probability, into lane `lane` of the batch arrays. */
+static inline void knn_window(const float *prob, const float *range, int32_t h, int32_t w, int32_t pu, int32_t pv,
+                              float own, int32_t half, int32_t window, const float *weights,
+                              float (*dist)[MOS_LANES], float (*probs)[MOS_LANES], int32_t lane) {
+    int32_t j = 0;
+    if (pv >= half && pv + half < h && pu >= half && pu + half < w) {  /* inside: no padding, no wrap */
+        for (int32_t dr = -half; dr <= half; ++dr) {
+            const int64_t row = (int64_t)(pv + dr) * w + pu - half;
+            for (int32_t dc = 0; dc < window; ++dc, ++j) {
+                const float here = range[row + dc];
+                const float rr = here > 0.0f ? here : MOS_EMPTY_RANGE;
+                dist[j][lane] = fabsf(rr - own) * weights[j];
+                probs[j][lane] = prob[row + dc];
+            }
+        }
+        return;
+    }
+    for (int32_t dr = -half; dr <= half; ++dr) {
+        const int32_t r = pv + dr;
+        for (int32_t dc = -half; dc <= half; ++dc, ++j) {
+            int32_t c = pu + dc;
+            c = c < 0 ? c + w : (c >= w ? c - w : c);
+            float rr = MOS_EMPTY_RANGE, p = 0.0f;
+            if (r >= 0 && r < h) {
+                const float here = range[(int64_t)r * w + c];
+                rr = here > 0.0f ? here : MOS_EMPTY_RANGE;
+                p = prob[(int64_t)r * w + c];
+            }
+            dist[j][lane] = fabsf(rr - own) * weights[j];
+            probs[j][lane] = p;
+        }
+    }
+}
+
+/* postprocess.knn_backproject for n points at pixels (u, v) with ranges prange: each point's moving probability
+ * by the kNN vote over the window x window pixels around its own (rows padded with empty pixels, columns
+ * wrapping), the float32 arithmetic of the numpy code (sums in another order: equal to ~1e-7). With use_threshold,
+ * a point whose window holds no probability on one side of threshold keeps its own pixel's probability (the vote
+ * could not change its label). weights: the window's inverse Gaussian, window * window floats; scratch: 3 * h * w
+ * bytes (with use_threshold). The votes run MOS_LANES points at a time: the k smallest distances of each lane
+ * sink through a min/max chain, the same operations in every lane (vectors, and no data-dependent branch). */
+MOS_CLONES void mos_knn_vote(const float *prob, const float *range, int32_t h, int32_t w, const int32_t *u,
+                             const int32_t *v, const float *prange, int64_t n, int32_t window, int32_t k,
+                             const float *weights, float cutoff, float threshold, int32_t use_threshold,
+                             uint8_t *scratch, float *out) {
     const int32_t half = window / 2, cells = window * window, center = cells / 2;
-    float dist[225], smallest[225], probs[225];
+    float dist[225][MOS_LANES], probs[225][MOS_LANES];
+    mos_lanes smallest[225];
+    int64_t batch[MOS_LANES];
+    int32_t filled = 0;
     uint8_t *mixed = NULL;
     if (use_threshold) {
         mixed = scratch + 2 * (int64_t)h * w;
         window_mixed(prob, h, w, half, threshold, scratch, mixed);
     }
-    for (int64_t i = 0; i < n; ++i) {
-        const int32_t pu = u[i], pv = v[i];
-        if (mixed != NULL && !mixed[(int64_t)pv * w + pu]) {
-            out[i] = prob[(int64_t)pv * w + pu];
-            continue;
-        }
-        const float own = prange[i];
-        int32_t j = 0;
-        for (int32_t dr = -half; dr <= half; ++dr) {
-            const int32_t r = pv + dr;
-            for (int32_t dc = -half; dc <= half; ++dc, ++j) {
-                int32_t c = pu + dc;
-                c = c < 0 ? c + w : (c >= w ? c - w : c);
-                float rr = MOS_EMPTY_RANGE, p = 0.0f;
-                if (r >= 0 && r < h) {
-                    const float here = range[(int64_t)r * w + c];
-                    rr = here > 0.0f ? here : MOS_EMPTY_RANGE;
-                    p = prob[(int64_t)r * w + c];
-                }
-                dist[j] = fabsf(rr - own) * weights[j];
-                probs[j] = p;
+    for (int64_t i = 0; i <= n; ++i) {
+        if (i < n) {
+            const int32_t pu = u[i], pv = v[i];
+            if (mixed != NULL && !mixed[(int64_t)pv * w + pu]) {
+                out[i] = prob[(int64_t)pv * w + pu];
+                continue;
             }
+            knn_window(prob, range, h, w, pu, pv, prange[i], half, window, weights, dist, probs, filled);
+            dist[center][filled] = -1.0f;
+            batch[filled++] = i;
+            if (filled < MOS_LANES) continue;
+        } else if (filled == 0) {
+            break;
         }
-        dist[center] = -1.0f;
-        float kth = INFINITY;
-        if (k < cells) {  /* the k-th smallest distance: the k smallest kept in order (k <= 225) */
-            int32_t kept = 0;
+        for (int32_t lane = filled; lane < MOS_LANES; ++lane) {  /* a last, partial batch: idle lanes */
+            for (int32_t a = 0; a < cells; ++a) dist[a][lane] = probs[a][lane] = 0.0f;
+        }
+        float kth[MOS_LANES];
+        for (int32_t lane = 0; lane < MOS_LANES; ++lane) kth[lane] = INFINITY;
+        if (k < cells) {
+            for (int32_t t = 0; t < k; ++t) smallest[t] = (mos_lanes){0} + INFINITY;
             for (int32_t a = 0; a < cells; ++a) {
-                const float d = dist[a];
-                if (kept == k && !(d < smallest[k - 1])) continue;
-                int32_t at = kept < k ? kept++ : k - 1;
-                while (at > 0 && smallest[at - 1] > d) {
-                    smallest[at] = smallest[at - 1];
-                    --at;
+                mos_lanes x;
+                memcpy(&x, dist[a], sizeof x);
+                for (int32_t t = 0; t < k; ++t) {
+                    const mos_lanes s = smallest[t];
+                    const mos_mask s_first = s < x;  /* (s < x ? s : x) and the other one, lane by lane */
+                    smallest[t] = SELECT_LANES(s_first, s, x);
+                    x = SELECT_LANES(s_first, x, s);
                 }
-                smallest[at] = d;
             }
-            kth = smallest[k - 1];
+            memcpy(kth, &smallest[k - 1], sizeof kth);
         }
-        float total = 0.0f;
-        int32_t count = 0;
+        mos_lanes limit, total = {0}, count = {0};
+        memcpy(&limit, kth, sizeof limit);
+        const mos_lanes zero = {0}, one = zero + 1.0f;
         for (int32_t a = 0; a < cells; ++a) {
-            if (dist[a] <= kth && dist[a] <= cutoff) {
-                total += probs[a];
-                ++count;
-            }
+            mos_lanes d, p;
+            memcpy(&d, dist[a], sizeof d);
+            memcpy(&p, probs[a], sizeof p);
+            const mos_mask keep = (d <= limit) & (d <= cutoff);
+            total += SELECT_LANES(keep, p, zero);
+            count += SELECT_LANES(keep, one, zero);
         }
-        out[i] = (float)((double)total / (double)count);
+        for (int32_t lane = 0; lane < filled; ++lane)
+            out[batch[lane]] = (float)((double)total[lane] / (double)count[lane]);
+        filled = 0;
     }
 }
