@@ -60,7 +60,8 @@ def hostile(draw: Any) -> tuple[str, FakeCloud]:
 def test_hostile_headers_are_rejected_with_a_scan_error() -> None:
     tried: dict[str, int] = {}
 
-    @settings(max_examples=400, deadline=None, database=None,
+    # derandomize: the same 400 cases on every run (a random draw once gave one mutation only 8 of them)
+    @settings(max_examples=400, deadline=None, database=None, derandomize=True,
               suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
     @given(hostile())
     def check(case: tuple[str, FakeCloud]) -> None:

@@ -10,9 +10,10 @@ from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 from ros2_mos.scoring.evaluation import predict_sequence
 from ros2_mos.scoring.metrics import MovingIoU
 
-# Measured on this held-out street (sequence name and seed never used in training): 91.1 with round 9's free-space
-# model (2026-12-01), 87.0 with the round-4 model, 86.7 with round 3's (round 2: 50.1). The bound leaves room for
-# platform differences, not for a regression.
+# Measured on this held-out street (sequence name and seed never used in training): 81.9 with round 10's model over
+# the scans its 16-back input is complete for (16-29; round 9's model: 82.7 there, 91.1-91.7 over its scans 8-29),
+# 87.0 with the round-4 model, 86.7 with round 3's (round 2: 50.1). The bound leaves room for platform
+# differences, not for a regression.
 MIN_IOU = 0.75
 
 
@@ -25,9 +26,9 @@ def test_shipped_model_finds_moving_objects_on_a_held_out_street(tmp_path):
     seq = SemanticKittiSequence(sequence_dir(tmp_path, "heldout"))
     pipeline = MosPipeline(MosConfig())
     meta = pipeline.model.metadata
-    assert meta.input.signed and meta.input.offsets == (1, 2, 4, 8) and not meta.input.uses_remission
+    assert meta.input.signed and meta.input.offsets == (1, 2, 4, 8, 16) and not meta.input.uses_remission
     assert meta.input.free_space
-    assert pipeline.model.metadata.sensor.name == "hdl64" and pipeline.threshold == pytest.approx(0.37)
+    assert pipeline.model.metadata.sensor.name == "hdl64" and pipeline.threshold == pytest.approx(0.57)
     score = MovingIoU()
     for pred in predict_sequence(pipeline, seq):
         assert pred.result.labels.shape == pred.gt_classes.shape
