@@ -304,6 +304,11 @@ def main(args: list[str] | None = None) -> None:
     except MosError as exc:
         rclpy.logging.get_logger(NODE_NAME).fatal(f"stopped: {exc}")
         code = 1
+    except RuntimeError:
+        # A SIGINT that shuts the context down while spin() sets up its wait set makes rclpy raise RCLError
+        # ("the given context is not valid") instead of ExternalShutdownException: a normal stop all the same.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

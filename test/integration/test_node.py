@@ -393,6 +393,26 @@ def test_ready_line_shows_remapped_topics_and_a_namesake_is_reported(tiny_model_
     assert all("Traceback" not in out for out in outputs)
 
 
+def test_a_sigint_while_spin_sets_up_is_a_normal_stop(tmp_path, tiny_model_path):
+    """rclpy raises RCLError ("context is not valid"), not ExternalShutdownException, when SIGINT shuts the
+    context down between its checks inside spin(); main() must stop cleanly then (a CI run once caught it)."""
+    params = tmp_path / "params.yaml"
+    params.write_text(f"mos_node:\n  ros__parameters:\n    model: {tiny_model_path}\n")
+    script = (
+        "import rclpy\n"
+        "from rclpy._rclpy_pybind11 import RCLError\n"
+        "from ros2_mos.ros import node\n"
+        "def spin(n):\n"
+        "    rclpy.shutdown()\n"
+        "    raise RCLError('failed to initialize wait set: the given context is not valid')\n"
+        "rclpy.spin = spin\n"
+        f"node.main(['mos_node', '--ros-args', '--params-file', {str(params)!r}])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], env=_env(DOMAIN + 9), capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0 and "Traceback" not in out.stdout + out.stderr, out.stdout + out.stderr
+
+
 def test_node_and_commands_read_a_params_file_alike(tmp_path, tiny_model_path):
     """``1e4`` is a float for both (ROS reads YAML 1.2 numbers); a file for another node is refused by both."""
     from ros2_mos.core.errors import ConfigError
