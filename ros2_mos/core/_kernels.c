@@ -532,12 +532,7 @@ static void window_mixed(const float *prob, int32_t h, int32_t w, int32_t half, 
     }
 }
 
-/* postprocess.knn_backproject for n points at pixels (u, v) with ranges prange: each point's moving probability
- * by the kNN vote over the window x window pixels around its own (rows padded with empty pixels, columns
- * wrapping), the float32 arithmetic of the numpy code (sums in another order: equal to ~1e-7). With use_threshold,
- * a point whose window holds no probability on one side of threshold keeps its own pixel's probability (the vote
- * could not change its label). weights: the window's inverse Gaussian, window * window floats; scratch: 3 * h * w
- * bytes (with use_threshold). */
+/* Range given to empty and padded pixels: far beyond any cut-off, so they never vote (postprocess._EMPTY_RANGE). */
 #define MOS_EMPTY_RANGE 1e9f
 #define MOS_LANES 8
 /* MOS_LANES floats, and a lane mask, as GCC / Clang vector types (SSE, AVX or NEON registers, or scalars). */
@@ -621,10 +616,10 @@ MOS_CLONES void mos_knn_vote(const float *prob, const float *range, int32_t h, i
         for (int32_t lane = filled; lane < MOS_LANES; ++lane) {  /* a last, partial batch: idle lanes */
             for (int32_t a = 0; a < cells; ++a) dist[a][lane] = probs[a][lane] = 0.0f;
         }
-        float kth[MOS_LANES];
-        for (int32_t lane = 0; lane < MOS_LANES; ++lane) kth[lane] = INFINITY;
+        const mos_lanes zero = {0}, one = zero + 1.0f;
+        mos_lanes limit = zero + INFINITY;  /* each lane's k-th smallest distance (all kept when k = cells) */
         if (k < cells) {
-            for (int32_t t = 0; t < k; ++t) smallest[t] = (mos_lanes){0} + INFINITY;
+            for (int32_t t = 0; t < k; ++t) smallest[t] = zero + INFINITY;
             for (int32_t a = 0; a < cells; ++a) {
                 mos_lanes x;
                 memcpy(&x, dist[a], sizeof x);
@@ -635,11 +630,9 @@ MOS_CLONES void mos_knn_vote(const float *prob, const float *range, int32_t h, i
                     x = SELECT_LANES(s_first, x, s);
                 }
             }
-            memcpy(kth, &smallest[k - 1], sizeof kth);
+            limit = smallest[k - 1];
         }
-        mos_lanes limit, total = {0}, count = {0};
-        memcpy(&limit, kth, sizeof limit);
-        const mos_lanes zero = {0}, one = zero + 1.0f;
+        mos_lanes total = zero, count = zero;
         for (int32_t a = 0; a < cells; ++a) {
             mos_lanes d, p;
             memcpy(&d, dist[a], sizeof d);
