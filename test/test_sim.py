@@ -188,6 +188,22 @@ def test_presets_differ_in_how_much_moves() -> None:
     assert jam > 0.1 and jam > 1.5 * bench
 
 
+def test_slow_traffic_shows_slower_movers_and_more_walking_people_than_the_benchmark(tmp_path: Path) -> None:
+    def sightings(preset: str) -> dict[str, list[float]]:
+        speeds: dict[str, list[float]] = {}
+        for seed in (1, 2):
+            stats = simulate_sequence(tmp_path / preset, f"{seed:02d}", 15, preset=preset, seed=seed, sensor=SMALL)
+            for kind, values in stats.speeds.items():
+                speeds.setdefault(kind, []).extend(values)
+        return speeds
+
+    slow, bench = sightings("slow_traffic"), sightings("benchmark")
+    median = {name: float(np.median(np.concatenate([np.asarray(v) for v in speeds.values()])))
+              for name, speeds in (("slow", slow), ("bench", bench))}
+    assert median["slow"] < 0.6 * median["bench"]
+    assert len(slow["pedestrian"]) > 2 * len(bench["pedestrian"])
+
+
 def test_parked_cars_are_static_and_at_least_as_many_as_moving_ones(written: tuple[Path, object]) -> None:
     _, stats = written
     assert len(stats.parked_cars) >= stats.n_moving_objects > 0  # type: ignore[attr-defined]

@@ -5,7 +5,7 @@
 #   OUT=out_dir [DEADLINE=seconds] [SCANS=100] [PER_PRESET=12] [WORK=/dev/shm/ros2_mos] \
 #       tools/gpu_train_sensors.sh [SENSOR...]
 #
-# 1. Simulates PER_PRESET randomised drives per preset (b*, t*, e*) plus the validation drives bv0/tv0/ev0
+# 1. Simulates PER_PRESET randomised drives per preset (b*, t*, e*, s* slow_traffic) plus the validation drives bv0/tv0/ev0
 #    of every sensor, seed 300 (neither the CPU recipe's seed 100 nor the evaluation suite's seeds), one
 #    sensor after another with every core.
 # 2. Starts one training process per run: each sensor's model fine-tuned from its starting checkpoint
@@ -42,17 +42,17 @@ print("torch", torch.__version__, "cuda", torch.cuda.is_available(), "numpy", nu
 EOF
 
 train=""
-for p in b t e; do
+for p in b t e s; do
     for i in $(seq 0 $((per_preset - 1))); do train="$train,$p$(printf %02d "$i")"; done
 done
 train="[${train#,}]"
 # Each sensor's latest CPU recipe and the checkpoint its shipped model came from (benchmarks/experiments.md).
-config_of() { case $1 in vlp16) echo fastmos_vlp16_free;; vlp32c) echo fastmos_vlp32c_more;; os1-64) echo fastmos_os164_free;;
+config_of() { case $1 in vlp16) echo fastmos_vlp16_free;; vlp32c) echo fastmos_vlp32c_more;; os1-64) echo fastmos_os164_slow;;
               os1-128) echo fastmos_os1128_stage3;; hdl64) echo fastmos_beams;;
               *) echo "unknown sensor $1" >&2; return 1;; esac; }
 init_of() { case $1 in vlp16) echo checkpoints/fastmos_vlp16_free_best.pt;;
                        vlp32c) echo checkpoints/fastmos_vlp32c_more_best.pt;;
-                       os1-64) echo checkpoints/fastmos_os164_free_best.pt;;
+                       os1-64) echo checkpoints/fastmos_os164_slow_best.pt;;
                        os1-128) echo checkpoints/fastmos_os1128_stage3_best.pt;;
                        *) echo checkpoints/fastmos_beams_last.pt;; esac; }
 work=${WORK:-/dev/shm/ros2_mos}

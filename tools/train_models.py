@@ -4,7 +4,7 @@
         [--variant "NAME KEY=VALUE ..."]... [--runs runs] [--scans 120] [--jobs N] [--pack runs.tar]
 
 Sequence names in the config say which preset each is simulated with (b* benchmark,
-t* traffic_jam, e* easy); every sequence gets its own randomised sensor effects
+t* traffic_jam, e* easy, s* slow_traffic); every sequence gets its own randomised sensor effects
 (:func:`ros2_mos.sim.presets.randomized_for_sequence`) from ``--seed`` (100 by default;
 the evaluation suite's seeds are different, see :mod:`ros2_mos.scoring.suite`).
 Sequences already on disk are kept.  The first variant builds the shared input
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import yaml
 
-PRESET_OF_PREFIX = {"b": "benchmark", "t": "traffic_jam", "e": "easy"}
+PRESET_OF_PREFIX = {"b": "benchmark", "t": "traffic_jam", "e": "easy", "s": "slow_traffic"}
 
 
 def _simulate(job: tuple[str, str, int, int, bool, bool, str]) -> str:
@@ -82,7 +82,7 @@ def main() -> int:
                                for n in [*config["train_sequences"], *config["valid_sequences"]]))
     unknown = [n for n in names if n[:1] not in PRESET_OF_PREFIX]
     if unknown:
-        print(f"error: sequence names must start with b, t or e (the preset): {unknown}", file=sys.stderr)
+        print(f"error: sequence names must start with b, t, e or s (the preset): {unknown}", file=sys.stderr)
         return 2
     start = time.monotonic()
     todo = [n for n in names if not (Path(args.data) / "sequences" / n / "poses.txt").is_file()]

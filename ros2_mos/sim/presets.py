@@ -295,6 +295,19 @@ SIM_PRESETS: dict[str, SimPreset] = {
             side_column=True, side_column_speed=(3.0, 7.0), heavy_vehicle_prob=0.3,
         ),
     ),
+    # Slow movers 20-50 m away, the ones the held-out benchmark drives miss most (benchmarks/experiments.md,
+    # row 24): people walking away along the sidewalks, cars creeping off from junctions and lights, a lead car
+    # far ahead, seen by an ego vehicle that often stands or drives slowly. A training preset, not a suite one.
+    "slow_traffic": SimPreset(
+        "slow_traffic",
+        ego=EgoConfig(speed=(3.0, 10.0), stop_prob=0.5, start_stopped_prob=0.5),
+        traffic=TrafficConfig(
+            lead_cars=(0, 1), headway=(2.0, 5.0), gap=(4.0, 15.0), oncoming_per_100m=1.0,
+            cross_cars_per_100m=1.2, car_speed=(2.0, 8.0), stop_and_go_prob=0.6,
+            slow_cars_per_100m=1.0, slow_speed=(0.5, 4.0), cyclists_per_100m=1.0, cyclist_speed=(1.5, 5.0),
+            pedestrians_per_100m=7.0, pedestrian_speed=(0.6, 2.0), standing_pedestrian_prob=0.15,
+        ),
+    ),
 }
 
 
