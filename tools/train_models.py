@@ -82,7 +82,8 @@ def main() -> int:
                                for n in [*config["train_sequences"], *config["valid_sequences"]]))
     unknown = [n for n in names if n[:1] not in PRESET_OF_PREFIX]
     if unknown:
-        print(f"error: sequence names must start with b, t, e or s (the preset): {unknown}", file=sys.stderr)
+        print(f"error: sequence names must start with one of {', '.join(PRESET_OF_PREFIX)} (the preset): {unknown}",
+              file=sys.stderr)
         return 2
     start = time.monotonic()
     todo = [n for n in names if not (Path(args.data) / "sequences" / n / "poses.txt").is_file()]
