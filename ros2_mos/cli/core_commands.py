@@ -10,6 +10,7 @@ from typing import Optional
 import typer
 
 from ros2_mos.cli.app import PARAMS_OPTION, app, fail
+from ros2_mos.scoring.breakdown import ErrorBreakdown, class_name
 
 
 def load_config(params: Optional[Path], model: Optional[Path], sensor: Optional[str] = None):
@@ -73,13 +74,18 @@ def evaluate(
     pred_dir: Path = typer.Argument(..., help="Predictions root (sequences/XX/predictions/*.label)"),
     gt_dir: Path = typer.Argument(..., help="Ground-truth root (sequences/XX/labels/*.label) or one sequence folder"),
     sequences: Optional[list[str]] = typer.Option(None, "--sequence", help="Only these sequences"),
+    by_instance: bool = typer.Option(False, "--by-instance", help="Also where the errors sit: the movers with "
+                                     "the most missed points (range, speed), recall and false positives by range, "
+                                     "false positives by class"),
+    top: int = typer.Option(15, "--top", help="--by-instance: how many movers to list", min=1),
 ) -> None:
     """Moving IoU per sequence and over all, as the SemanticKITTI MOS benchmark defines it."""
     from ros2_mos.scoring.evaluation import evaluate_predictions
     from ros2_mos.scoring.metrics import MovingIoU
 
     skipped: list[str] = []
-    scores = evaluate_predictions(pred_dir, gt_dir, sequences, skipped=skipped)
+    breakdown = ErrorBreakdown() if by_instance else None
+    scores = evaluate_predictions(pred_dir, gt_dir, sequences, skipped=skipped, breakdown=breakdown)
     total = MovingIoU()
     typer.echo(f"{'sequence':>10} {'IoU':>7} {'TP':>10} {'FP':>10} {'FN':>10}")
     for name, s in scores.items():
@@ -89,6 +95,33 @@ def evaluate(
     if skipped:
         typer.echo(f"note: 'all' covers {len(scores)} of {len(scores) + len(skipped)} ground-truth sequences; "
                    f"no predictions for {', '.join(skipped)}")
+    if breakdown is not None:
+        _print_breakdown(breakdown, top)
+
+
+def _print_breakdown(breakdown: ErrorBreakdown, top: int) -> None:
+    movers = breakdown.movers()
+    shown = movers[:top]
+    typer.echo(f"\nmovers with the most missed points ({len(shown)} of {len(movers)}; range of the centroid, "
+               "speed in the world frame):")
+    width = max([len("sequence")] + [len(m.sequence) for m in shown])
+    typer.echo(f"{'sequence':<{width}} {'instance':>8} {'class':<19} {'scans':>5} {'points':>8} {'missed':>8} "
+               f"{'recall':>6} {'range m':>7} {'m/s':>5}")
+    for m in shown:
+        speed = "n/a" if math.isnan(m.speed) else f"{m.speed:.1f}"
+        typer.echo(f"{m.sequence:<{width}} {m.instance:>8} {m.label:<19} {m.scans:>5} {m.points:>8} {m.missed:>8} "
+                   f"{_pct(m.recall):>6} {m.median_range:>7.1f} {speed:>5}")
+    typer.echo(f"\nby range of the point ({breakdown.scans} scans):")
+    typer.echo(f"{'range':>10} {'moving':>9} {'recall':>6} {'FP points':>10}")
+    for band in breakdown.by_range():
+        typer.echo(f"{band.name:>10} {band.moving:>9} {_pct(band.recall):>6} {band.false_positives:>10}")
+    false_positives = breakdown.false_positives_by_class()
+    total = sum(n for _, n in false_positives)
+    typer.echo("\nfalse positives by class (static points labelled moving):")
+    if not false_positives:
+        typer.echo("  none")
+    for semantic, n in false_positives:
+        typer.echo(f"{class_name(semantic):>19} {n:>9} {100 * n / total:>5.1f} %")
 
 
 def _pct(x: float) -> str:

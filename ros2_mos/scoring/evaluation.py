@@ -16,6 +16,7 @@ from ros2_mos.core.errors import DatasetError
 from ros2_mos.core.pipeline import MosPipeline, MosResult
 from ros2_mos.io.labels import SUBMISSION_MOVING_ID, semantic_ids, to_moving_classes, to_submission
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label, sequence_dirs, write_label
+from ros2_mos.scoring.breakdown import ErrorBreakdown
 from ros2_mos.scoring.metrics import MovingIoU
 
 
@@ -55,12 +56,14 @@ def evaluate_predictions(
     sequences: list[str] | None = None,
     progress: Callable[[Iterator], Iterator] = lambda it: it,
     skipped: list[str] | None = None,
+    breakdown: ErrorBreakdown | None = None,
 ) -> dict[str, MovingIoU]:
     """Moving IoU per sequence for a submission folder against SemanticKITTI ground truth.
 
     Without ``sequences`` every ground-truth sequence that has predictions is scored;
     the names of those without predictions are appended to ``skipped`` (so that a
-    caller can say the total covers only part of the data).
+    caller can say the total covers only part of the data). With ``breakdown`` every scored scan is also added to
+    it (this reads the points, not only their count).
     """
     gt_dirs = {p.name: p for p in sequence_dirs(gt_root, sequences)}
     scores: dict[str, MovingIoU] = {}
@@ -81,7 +84,12 @@ def evaluate_predictions(
             gt = read_label(gt_seq.label_path(i), n_points)  # a short ground-truth file is named as such
             pred_file = pred_dir / (gt_seq.scan_files[i].stem + ".label")
             pred = read_label(pred_file, n_points)
-            score.update(semantic_ids(pred) == SUBMISSION_MOVING_ID, to_moving_classes(gt))
+            predicted_moving = semantic_ids(pred) == SUBMISSION_MOVING_ID
+            score.update(predicted_moving, to_moving_classes(gt))
+            if breakdown is not None:
+                frame = gt_seq[i]
+                pose = None if gt_seq.poses is None else gt_seq.poses[i]
+                breakdown.update(name, frame.points, gt, predicted_moving, pose, frame.timestamp)
         scores[name] = score
     if not scores:
         raise DatasetError(f"no sequence of {gt_root} has predictions under {pred_root}/sequences")

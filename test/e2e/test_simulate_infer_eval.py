@@ -103,3 +103,32 @@ def test_console_script_turns_library_errors_into_one_line_messages(tmp_path, vl
     proc = subprocess.run([str(script), "infer", str(tmp_path), "--model", str(tmp_path / "missing.onnx"),
                            "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1 and "model file not found" in proc.stderr
+
+
+def test_eval_by_instance_lists_each_mover_with_its_recall_range_and_speed(dataset, tmp_path):
+    """Predictions equal to the ground truth: every mover at 100 % and no false positives; all static: every mover
+    at 0 %, the most missed first. The simulator's poses give each mover a speed."""
+    from ros2_mos.io.labels import to_moving_classes, to_submission
+    from ros2_mos.io.semantic_kitti import write_label
+
+    seq = SemanticKittiSequence(dataset / "sequences" / "00")
+    for name, predict in (("perfect", lambda gt: gt == 1), ("static", lambda gt: np.zeros(len(gt), bool))):
+        for i in range(len(seq)):
+            gt = to_moving_classes(seq[i].labels)
+            out = tmp_path / name / "sequences" / "00" / "predictions" / f"{i:06d}.label"
+            write_label(out, to_submission(predict(gt)))
+    result = runner.invoke(app, ["eval", str(tmp_path / "perfect"), str(dataset), "--by-instance", "--top", "100"])
+    assert result.exit_code == 0, result.output
+    rows = [line.split() for line in result.output.splitlines() if line.startswith("00 ")]
+    assert rows and all(r[6] == "100.0" for r in rows), result.output
+    assert all(r[2].startswith("moving-") for r in rows)
+    seen_long = [r for r in rows if int(r[3]) >= 10]  # seen over a second: a speed from the poses
+    assert seen_long and all(0.3 < float(r[8]) < 30 for r in seen_long), result.output
+    assert "false positives by class" in result.output and "none" in result.output
+    result = runner.invoke(app, ["eval", str(tmp_path / "static"), str(dataset), "--by-instance", "--top", "2"])
+    assert result.exit_code == 0, result.output
+    rows = [line.split() for line in result.output.splitlines() if line.startswith("00 ")]
+    assert len(rows) == 2 and all(r[6] == "0.0" for r in rows)
+    assert int(rows[0][5]) >= int(rows[1][5])  # most missed first
+    result = runner.invoke(app, ["eval", str(tmp_path / "static"), str(dataset), "--by-instance", "--top", "0"])
+    assert result.exit_code != 0
