@@ -18,14 +18,15 @@ SUBMISSION_MOVING_ID = 251
 MOVING_IDS = tuple(range(251, 260))
 IGNORED_IDS = (0, 1)
 
-# Semantic ids used by the simulator and understood by the tools (SemanticKITTI's own).
+# Semantic ids used by the simulator and understood by the tools (SemanticKITTI's own; 9 and 251 are the MOS
+# benchmark's static and moving).
 SEMANTIC_NAMES: dict[int, str] = {
-    0: "unlabeled", 1: "outlier", 10: "car", 11: "bicycle", 13: "bus", 15: "motorcycle",
+    0: "unlabeled", 1: "outlier", 9: "static", 10: "car", 11: "bicycle", 13: "bus", 15: "motorcycle",
     18: "truck", 20: "other-vehicle", 30: "person", 31: "bicyclist", 32: "motorcyclist",
     40: "road", 44: "parking", 48: "sidewalk", 49: "other-ground", 50: "building",
     51: "fence", 52: "other-structure", 60: "lane-marking", 70: "vegetation", 71: "trunk",
     72: "terrain", 80: "pole", 81: "traffic-sign", 99: "other-object",
-    252: "moving-car", 253: "moving-bicyclist", 254: "moving-person", 255: "moving-motorcyclist",
+    251: "moving", 252: "moving-car", 253: "moving-bicyclist", 254: "moving-person", 255: "moving-motorcyclist",
     256: "moving-on-rails", 257: "moving-bus", 258: "moving-truck", 259: "moving-other-vehicle",
 }
 
