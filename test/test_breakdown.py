@@ -100,3 +100,13 @@ def test_mismatched_or_bad_scans_are_refused_with_a_clear_error():
     with pytest.raises(DatasetError, match="not finite"):
         b.update("s", pts, labels, [1, 0, 1, 0], None, float("nan"))
     assert b.scans == 0
+
+
+def test_points_with_a_non_finite_coordinate_are_left_out():
+    b = ErrorBreakdown()
+    points = np.array([[10, 0, 0], [np.nan, 0, 0], [0, np.inf, 0]], np.float32)
+    labels = np.full(3, raw(CAR, 4), np.uint32)
+    b.update("s", points, labels, [1, 1, 1], None, 0.0)
+    (car,) = b.movers()
+    assert (car.points, car.found, car.median_range) == (1, 1, 10.0)
+    assert [band.moving for band in b.by_range()] == [0, 1, 0, 0]  # 10 m opens the 10-20 m band

@@ -8,8 +8,8 @@ does, and counts only points the benchmark counts (ground truth 0 unlabeled and 
 A mover is one (sequence, instance id, semantic id) of SemanticKITTI labels: moving points without an instance id
 form one mover per class and sequence. Its speed is that of the centroid of its labelled points in the world frame
 (the sequence's poses), over about :data:`SPEED_BASELINE` seconds; the median over its scans. The centroid of what
-a sensor sees of an object shifts as the view changes, so the speed is an estimate (~0.2 m/s on a parked car);
-without poses it is not given (NaN).
+a sensor sees of an object shifts as the view changes, so the speed is an estimate; without poses it is not given
+(NaN). Points with a non-finite coordinate are left out.
 """
 
 from __future__ import annotations
@@ -133,6 +133,9 @@ class ErrorBreakdown:
         if not math.isfinite(timestamp):
             raise DatasetError(f"{sequence}: scan time {timestamp} is not finite")
         self.scans += 1
+        finite = np.isfinite(xyz).all(axis=1)
+        if not finite.all():
+            xyz, raw, pred = xyz[finite], raw[finite], pred[finite]
         gt = to_moving_classes(raw)
         counted = gt != IGNORE
         moving = gt == MOVING
