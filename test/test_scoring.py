@@ -92,6 +92,23 @@ def test_suite_row_scores_the_model_and_both_baselines_on_the_same_scans(labelle
     assert "| street | 4 |" in table and "| total | 0 | **–** |" in table
 
 
+def test_a_suite_row_s_breakdown_accounts_for_every_scored_point(labelled_sequence, tiny_model_path):
+    """The breakdown of the scored scans: movers' found and missed points are the row's TP and FN, the false
+    positives by class and by range both add up to its FP."""
+    from ros2_mos.scoring.breakdown import ErrorBreakdown
+
+    pipe = MosPipeline(MosConfig(model=str(tiny_model_path)))
+    breakdown = ErrorBreakdown()
+    row = score_sequence(pipe, labelled_sequence, "street", warmup=2, breakdown=breakdown)
+    movers = breakdown.movers()
+    assert breakdown.scans == row.scans == 4 and movers
+    assert {m.sequence for m in movers} == {labelled_sequence.name}
+    assert sum(m.found for m in movers) == row.model.tp > 0
+    assert sum(m.missed for m in movers) == row.model.fn
+    assert sum(n for _, n in breakdown.false_positives_by_class()) == row.model.fp
+    assert sum(band.false_positives for band in breakdown.by_range()) == row.model.fp
+
+
 def test_real_scans_are_skipped_cleanly_when_absent(tmp_path):
     assert real_sequences(tmp_path / "nothing") == []
     assert real_sequences(None) == []

@@ -96,10 +96,11 @@ def evaluate(
         typer.echo(f"note: 'all' covers {len(scores)} of {len(scores) + len(skipped)} ground-truth sequences; "
                    f"no predictions for {', '.join(skipped)}")
     if breakdown is not None:
-        _print_breakdown(breakdown, top)
+        print_breakdown(breakdown, top)
 
 
-def _print_breakdown(breakdown: ErrorBreakdown, top: int) -> None:
+def print_breakdown(breakdown: ErrorBreakdown, top: int) -> None:
+    """The tables of ``--by-instance`` (``eval`` and ``suite``)."""
     movers = breakdown.movers()
     shown = movers[:top]
     typer.echo(f"\nmovers with the most missed points ({len(shown)} of {len(movers)}; range of the centroid, "

@@ -23,14 +23,18 @@ def suite(
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the table (Markdown) to this file"),
     sensor: str = typer.Option("hdl64", help="Sensor preset: its held-out drives are simulated into DATA/SENSOR "
                                              "(other than hdl64) and scored with its model; real scans: hdl64 only"),
+    by_instance: bool = typer.Option(False, "--by-instance", help="After the table, where the model's errors sit "
+                                     "over all rows (as `eval --by-instance`; not written to --out)"),
+    top: int = typer.Option(15, "--top", help="--by-instance: how many movers to list", min=1),
 ) -> None:
     """Moving IoU, precision, recall and false positives of a model beside the Residual and Residual + RG baselines."""
     from datetime import date
 
     from tqdm import tqdm
 
-    from ros2_mos.cli.core_commands import load_config
+    from ros2_mos.cli.core_commands import load_config, print_breakdown
     from ros2_mos.core.pipeline import MosPipeline
+    from ros2_mos.scoring.breakdown import ErrorBreakdown
     from ros2_mos.scoring.suite import SIM_SEEDS, format_table, run_suite
 
     if out is not None and out.exists() and not out.is_file():
@@ -44,9 +48,10 @@ def suite(
     seeds = {k: v[:1] for k, v in SIM_SEEDS.items()} if quick else SIM_SEEDS
     typer.echo(f"model {pipeline.model.path.name}: {pipeline.model.metadata.network}, {pipeline.setup.label}, "
                f"threshold {pipeline.threshold:.2f}, sensor {pipeline.sensor.name}")
+    breakdown = ErrorBreakdown() if by_instance else None
     with tqdm(desc="suite", unit="scan", leave=False) as bar:
         rows = run_suite(pipeline, data, real, scans, seeds, log=typer.echo, progress=bar.update,
-                         sensor=spec.name)
+                         sensor=spec.name, breakdown=breakdown)
     pipeline.close()
     title = (f"Evaluation suite, {date.today().isoformat()}: model `{pipeline.model.path.name}` "
              f"({pipeline.setup.label}, threshold {pipeline.threshold:.2f}), sensor {pipeline.sensor.name}, "
@@ -57,6 +62,8 @@ def suite(
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(table + "\n")
+    if breakdown is not None:
+        print_breakdown(breakdown, top)
 
 
 @app.command()

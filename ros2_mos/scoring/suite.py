@@ -41,6 +41,7 @@ from ros2_mos.scoring.baselines import (
     region_growing,
     residual_threshold,
 )
+from ros2_mos.scoring.breakdown import ErrorBreakdown
 from ros2_mos.scoring.metrics import MovingIoU
 
 #: Held-out simulation seeds per preset (never used for training data).
@@ -86,8 +87,11 @@ def _recall(s: MovingIoU) -> float:
 
 def score_sequence(pipeline: MosPipeline, sequence: SemanticKittiSequence, name: str, warmup: int = 0,
                    rg_params: RegionGrowingParams = RegionGrowingParams(),
-                   progress: Callable[[], None] | None = None) -> RowScore:
-    """Run the pipeline (KISS-ICP poses) over a labelled sequence; score scans from ``warmup`` on."""
+                   progress: Callable[[], None] | None = None, breakdown: ErrorBreakdown | None = None) -> RowScore:
+    """Run the pipeline (KISS-ICP poses) over a labelled sequence; score scans from ``warmup`` on.
+
+    With ``breakdown`` the model's labels of every scored scan are also added to it, under the sequence's name.
+    """
     if not sequence.has_labels:
         raise DatasetError(f"{sequence.root}: no labels/ to score against")
     row = RowScore(name)
@@ -104,6 +108,8 @@ def score_sequence(pipeline: MosPipeline, sequence: SemanticKittiSequence, name:
         gt = to_moving_classes(frame.labels)
         row.scans += 1
         row.model.update(result.labels, gt)
+        if breakdown is not None:
+            breakdown.update(sequence.name, frame.points, frame.labels, result.labels, frame.pose, frame.timestamp)
         row.max_moving_fraction = max(row.max_moving_fraction, float(result.labels[result.valid].mean()))
         # The baselines on the same scan, poses and back-projection.
         valid = finite_mask(frame.points)
@@ -148,13 +154,18 @@ def real_sequences(real_root: Path | None) -> list[Path]:
 
 def run_suite(pipeline: MosPipeline, sim_root: Path, real_root: Path | None, scans: int = 100,
               seeds: dict[str, tuple[int, ...]] = SIM_SEEDS, log: Callable[[str], None] = lambda s: None,
-              progress: Callable[[], None] | None = None, sensor: str = "hdl64") -> list[RowScore]:
-    """Every row of the suite: per sequence, per preset, the real scans; absent real scans are skipped."""
+              progress: Callable[[], None] | None = None, sensor: str = "hdl64",
+              breakdown: ErrorBreakdown | None = None) -> list[RowScore]:
+    """Every row of the suite: per sequence, per preset, the real scans; absent real scans are skipped.
+
+    With ``breakdown`` every scored scan of the model is also added to it (see :func:`score_sequence`).
+    """
     rows: list[RowScore] = []
     for preset, group in _grouped(ensure_sim_sequences(sim_root, scans, seeds, log, sensor)):
         total = RowScore(f"sim {preset}")
         for name, folder in group:
-            row = score_sequence(pipeline, SemanticKittiSequence(folder), f"  {name}", progress=progress)
+            row = score_sequence(pipeline, SemanticKittiSequence(folder), f"  {name}", progress=progress,
+                                 breakdown=breakdown)
             rows.append(row)
             total.add(row)
         rows.append(total)
@@ -163,7 +174,7 @@ def run_suite(pipeline: MosPipeline, sim_root: Path, real_root: Path | None, sca
         total = RowScore("real KITTI 08 (agreement)")
         for folder in real:
             row = score_sequence(pipeline, SemanticKittiSequence(folder), f"  real {folder.name}", REAL_WARMUP,
-                                 progress=progress)
+                                 progress=progress, breakdown=breakdown)
             rows.append(row)
             total.add(row)
         rows.append(total)
