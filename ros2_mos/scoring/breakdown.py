@@ -123,7 +123,7 @@ class ErrorBreakdown:
                pose: np.ndarray | None, timestamp: float) -> None:
         """Add one scan: (N, 3) points in the sensor frame, raw uint32 labels, bool/0-1 predictions per point, the
         sensor's (4, 4) pose in the world frame (None: no speeds) and the scan's time in seconds."""
-        xyz = np.asarray(points, np.float64).reshape(-1, 3) if np.size(points) else np.zeros((0, 3))
+        xyz = np.asarray(points, np.float64).reshape(-1, 3)
         raw = np.asarray(raw_labels).reshape(-1)
         pred = np.asarray(predicted_moving).astype(bool).reshape(-1)
         if not len(xyz) == len(raw) == len(pred):
@@ -149,22 +149,23 @@ class ErrorBreakdown:
         self._fp_by_class += np.bincount(semantic_ids(raw[fp]), minlength=_MAX_SEMANTIC)
         if not moving.any():
             return
-        sem, inst = semantic_ids(raw[moving]), instance_ids(raw[moving])
-        keys, which = np.unique(np.stack([inst, sem], axis=1), axis=0, return_inverse=True)
+        mover_raw, mover_xyz = raw[moving], xyz[moving]
+        keys, which = np.unique(np.stack([instance_ids(mover_raw), semantic_ids(mover_raw)], axis=1), axis=0,
+                                return_inverse=True)
         which = which.reshape(-1)
         counts = np.bincount(which, minlength=len(keys))
         found = np.bincount(which, weights=pred[moving], minlength=len(keys))
-        centroids = np.stack([np.bincount(which, weights=xyz[moving][:, k], minlength=len(keys)) for k in range(3)],
+        centroids = np.stack([np.bincount(which, weights=mover_xyz[:, k], minlength=len(keys)) for k in range(3)],
                              axis=1) / counts[:, None]
+        world = None if pose is None else np.asarray(pose, np.float64)
         for k, (instance, semantic) in enumerate(keys):
             track = self._tracks.setdefault((sequence, int(instance), int(semantic)), _Track())
             track.points += int(counts[k])
             track.found += int(found[k])
             track.ranges.append(float(np.linalg.norm(centroids[k])))
             track.times.append(float(timestamp))
-            if pose is not None:
-                track.world_centroids.append(np.asarray(pose, np.float64)[:3, :3] @ centroids[k]
-                                             + np.asarray(pose, np.float64)[:3, 3])
+            if world is not None:
+                track.world_centroids.append(world[:3, :3] @ centroids[k] + world[:3, 3])
 
     def movers(self) -> list[MoverScore]:
         """Every mover, most missed points first."""

@@ -15,7 +15,7 @@ import numpy as np
 from ros2_mos.core.errors import DatasetError
 from ros2_mos.core.pipeline import MosPipeline, MosResult
 from ros2_mos.io.labels import SUBMISSION_MOVING_ID, semantic_ids, to_moving_classes, to_submission
-from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label, sequence_dirs, write_label
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label, read_scan, sequence_dirs, write_label
 from ros2_mos.scoring.breakdown import ErrorBreakdown
 from ros2_mos.scoring.metrics import MovingIoU
 
@@ -86,10 +86,10 @@ def evaluate_predictions(
             pred = read_label(pred_file, n_points)
             predicted_moving = semantic_ids(pred) == SUBMISSION_MOVING_ID
             score.update(predicted_moving, to_moving_classes(gt))
-            if breakdown is not None:
-                frame = gt_seq[i]
+            if breakdown is not None:  # the scan's points; its labels are read above
+                points = read_scan(gt_seq.scan_files[i])[:, :3]
                 pose = None if gt_seq.poses is None else gt_seq.poses[i]
-                breakdown.update(name, frame.points, gt, predicted_moving, pose, frame.timestamp)
+                breakdown.update(name, points, gt, predicted_moving, pose, float(gt_seq.times[i]))
         scores[name] = score
     if not scores:
         raise DatasetError(f"no sequence of {gt_root} has predictions under {pred_root}/sequences")
