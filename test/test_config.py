@@ -10,6 +10,7 @@ from ros2_mos.core.config import (
     MosConfig,
     OdometryConfig,
     PostprocessConfig,
+    ResidualConfig,
     SensorConfig,
     estimate_fov,
     sensor_preset,
@@ -57,6 +58,10 @@ def test_estimate_fov_from_a_scan():
         (lambda: MosConfig(threshold=1.5), "mos threshold must be <= 1, got 1.5"),
         (lambda: MosConfig(geometry_backend="jax"), "mos geometry_backend must be one of numpy, torch"),
         (lambda: SensorConfig(max_range=float("inf")), "sensor 'hdl64': max_range must be a finite number"),
+        (lambda: ResidualConfig(max_range=float("nan")), "residuals max_range must be a finite number"),
+        (lambda: ResidualConfig(max_range=0.0), "residuals max_range must be > 0, got 0.0"),
+        (lambda: ResidualConfig(max_range=1e4), "residuals max_range must be <= 1000"),
+        (lambda: ResidualConfig(min_range=60.0), "need 0 <= min_range < max_range <= 1000, got 60.0 and 50.0"),
     ],
 )
 def test_each_knob_is_checked_from_its_one_definition(build, message):
@@ -73,6 +78,20 @@ def test_optional_knobs_accept_none_and_ros_params_derive_from_the_same_knob():
     assert (spec.type, spec.default, spec.min, spec.max) == (int, 5, 1, 15)
     assert SPECS["odometry.voxel_size"].default == 0.0 and SPECS["model"].default == ""
     assert SPECS["sensor.height"].description == "custom sensor: range image rows (beams)"
+
+
+def test_the_residual_window_is_the_models_unless_set():
+    """max_range None (ROS param 0): the model's own far end, or LiDAR-MOS's 50 m for a model that records none."""
+    from ros2_mos.ros.params import SPECS, mos_config
+
+    assert ResidualConfig().upper == 50.0 and ResidualConfig().for_model(None).upper == 50.0
+    assert ResidualConfig().for_model(100.0) == ResidualConfig(2.0, 100.0)
+    assert ResidualConfig(max_range=45.0).for_model(100.0).upper == 45.0
+    with pytest.raises(ConfigError, match="min_range < max_range"):
+        ResidualConfig(min_range=40.0).for_model(30.0)
+    assert SPECS["residuals.max_range"].default == 0.0
+    assert mos_config({"residuals.max_range": 0.0}).residuals.max_range is None
+    assert mos_config({"residuals.max_range": 80.0}).residuals.upper == 80.0
 
 
 def test_yaml_files_that_cannot_be_read_are_one_line_errors(tmp_path):

@@ -5,7 +5,14 @@ import pytest
 from conftest import TEST_SENSOR, make_threshold_model, make_wrong_channels_model
 from scenes import street_sequence
 
-from ros2_mos.core.config import MosConfig, OdometryConfig, PostprocessConfig, RegistrationConfig, SensorConfig
+from ros2_mos.core.config import (
+    MosConfig,
+    OdometryConfig,
+    PostprocessConfig,
+    RegistrationConfig,
+    ResidualConfig,
+    SensorConfig,
+)
 from ros2_mos.core.errors import ConfigError, ImplausibleScanError, ModelError, ScanError
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.pipeline import MosPipeline
@@ -279,6 +286,54 @@ def test_threshold_zero_takes_the_models_recommended_threshold(tmp_path):
     onnx.save(model, str(path))
     assert MosPipeline(MosConfig(model=str(path))).threshold == 0.8
     assert MosPipeline(MosConfig(model=str(path), threshold=0.3)).threshold == 0.3
+
+
+def _set_metadata(path, **extra) -> None:
+    import onnx
+
+    from ros2_mos.core.metadata import METADATA_KEY, ModelMetadata
+
+    model = onnx.load(str(path))
+    prop = next(p for p in model.metadata_props if p.key == METADATA_KEY)
+    meta = ModelMetadata.from_json(prop.value)
+    meta.extra.update(extra)
+    prop.value = meta.to_json()
+    onnx.save(model, str(path))
+
+
+def _wall(distance: float) -> np.ndarray:
+    """A wall across the test sensor's whole view ``distance`` m ahead (x), 3 m wide."""
+    y, z = np.meshgrid(np.linspace(-1.5, 1.5, 61), np.linspace(-5.0, 5.0, 201))
+    return np.stack([np.full(y.size, distance), y.ravel(), z.ravel()], axis=1).astype(np.float32)
+
+
+def test_residuals_reach_out_to_the_models_own_window_unless_configured(tmp_path):
+    """A wall 60 m ahead moves 3 m away: its residual reads 3 / 63 inside an 80 m window and 0 inside
+    LiDAR-MOS's 50 m, which a model that records no window gets; a configured window wins over the model's."""
+    path = make_threshold_model(tmp_path / "m.onnx")
+
+    def residual_on_the_wall(config: MosConfig) -> tuple[float, float]:
+        pipe = MosPipeline(config)
+        pipe.process(_wall(60.0), None, 0.0, pose=np.eye(4))
+        result = pipe.process(_wall(63.0), None, 0.1, pose=np.eye(4))
+        on_wall = result.range_image > 0
+        return pipe.residual_window.upper, float(np.median(result.residuals[0][on_wall]))
+
+    no_registration = RegistrationConfig(iterations=0)
+    assert residual_on_the_wall(MosConfig(model=str(path), registration=no_registration)) == (50.0, 0.0)
+    _set_metadata(path, residual_max_range=80.0)
+    upper, residual = residual_on_the_wall(MosConfig(model=str(path), registration=no_registration))
+    assert upper == 80.0 and residual == pytest.approx(3.0 / 63.0, abs=2e-3)
+    configured = MosConfig(model=str(path), registration=no_registration, residuals=ResidualConfig(max_range=45.0))
+    assert residual_on_the_wall(configured) == (45.0, 0.0)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0, 0.0, 2000.0, True, "80"])
+def test_a_models_residual_window_must_be_a_range(tmp_path, bad):
+    path = make_threshold_model(tmp_path / "m.onnx")
+    _set_metadata(path, residual_max_range=bad)
+    with pytest.raises(ModelError, match="residual_max_range"):
+        MosPipeline(MosConfig(model=str(path)))
 
 
 def test_past_offsets_and_signed_residuals_reach_the_network(tmp_path):

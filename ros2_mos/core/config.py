@@ -19,6 +19,8 @@ from ros2_mos.core.errors import ConfigError
 
 #: Ranges above this are no LiDAR's (and break KISS-ICP's voxel hashing: inf or 1e300 aborts it).
 MAX_RANGE_LIMIT = 1000.0
+#: The far end of the residual window (m) where neither the settings nor the model say otherwise (LiDAR-MOS's).
+DEFAULT_RESIDUAL_MAX_RANGE = 50.0
 
 
 def read_yaml_mapping(path: str | Path, what: str, loader: Any = None) -> Mapping[str, Any]:
@@ -210,18 +212,33 @@ def estimate_fov(points: np.ndarray, percentile: float = 0.1, margin_deg: float 
 class ResidualConfig:
     """Where residual images are computed: only where both ranges lie in (min_range, max_range).
 
-    The defaults (2, 50) m are those of the LiDAR-MOS reference implementation.
+    ``max_range`` None is the model's own window, recorded when it was trained
+    (:meth:`for_model`), or LiDAR-MOS's 50 m for a model that records none; (2, 50) m are the
+    LiDAR-MOS reference implementation's. Beyond the window every residual reads 0, so a
+    model must be run with the window it was trained with.
     """
 
     min_range: float = knob(2.0, "residuals only where both ranges exceed this (m)", min=0.0)
-    max_range: float = knob(50.0, "residuals only where both ranges are below this (m)", min=0.0,
-                            max=MAX_RANGE_LIMIT)
+    max_range: float | None = knob(None, "residuals only where both ranges are below this (m); 0 = the model's own "
+                                         f"window ({DEFAULT_RESIDUAL_MAX_RANGE:g} m for a model that records none)",
+                                   kind=float, min=0.0, above=True, max=MAX_RANGE_LIMIT, unset=0.0)
 
     def __post_init__(self) -> None:
         check_knobs(self, "residuals")
-        if not self.min_range < self.max_range:
+        if not self.min_range < self.upper:
             raise ConfigError(f"residuals: need 0 <= min_range < max_range <= {MAX_RANGE_LIMIT:g}, "
-                              f"got {self.min_range} and {self.max_range}")
+                              f"got {self.min_range} and {self.upper}")
+
+    @property
+    def upper(self) -> float:
+        """The window's far end (m): ``max_range``, or LiDAR-MOS's 50 m where it is left to the model."""
+        return DEFAULT_RESIDUAL_MAX_RANGE if self.max_range is None else self.max_range
+
+    def for_model(self, model_max_range: float | None) -> "ResidualConfig":
+        """The window to run a model with: the configured far end, else the one the model was trained with."""
+        if self.max_range is not None or model_max_range is None:
+            return self
+        return dataclasses.replace(self, max_range=model_max_range)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ros2_mos.core.config import SensorConfig
+from ros2_mos.core.config import MAX_RANGE_LIMIT, SensorConfig
 from ros2_mos.core.errors import ModelError
 from ros2_mos.core.network_input import DEFAULT_MEANS, DEFAULT_STDS, InputSetup
 
@@ -62,7 +62,18 @@ class ModelMetadata:
             raise ModelError(f"model metadata: stds must be positive, got {meta.stds}")
         if "recommended_threshold" in meta.extra:
             check_threshold(meta.extra["recommended_threshold"], "model metadata recommended_threshold")
+        if "residual_max_range" in meta.extra:
+            far = meta.extra["residual_max_range"]
+            if isinstance(far, bool) or not isinstance(far, (int, float)) or not 0.0 < far <= MAX_RANGE_LIMIT:
+                raise ModelError(f"model metadata residual_max_range must be a number in (0, {MAX_RANGE_LIMIT:g}] m, "
+                                 f"got {far!r}")
         return meta
+
+    @property
+    def residual_max_range(self) -> float | None:
+        """The residual window's far end the model was trained with (m); None for models that do not record it."""
+        far = self.extra.get("residual_max_range")
+        return None if far is None else float(far)
 
 
 def check_threshold(value: object, what: str = "threshold") -> float:

@@ -198,6 +198,8 @@ class MosPipeline:
         # The setting counts pixels of a 64 x 2048 image: the same solid angle on other images.
         scale = self.sensor.height * self.sensor.width / REFERENCE_PIXELS
         self._min_region_pixels = round(config.postprocess.min_region_pixels * scale)
+        #: Where residuals are computed: the configured window, or the one the model was trained with.
+        self.residual_window = config.residuals.for_model(meta.residual_max_range)
         self.means = np.asarray(meta.means, np.float32)
         self.stds = np.asarray(meta.stds, np.float32)
         self.odometry = KissIcpOdometry(config.odometry)
@@ -366,10 +368,10 @@ class MosPipeline:
         """The residual images (empty for 'frames' setups) and what the network takes from the past scans."""
         if self.setup.kind == "residual":
             residuals = self.geometry.residuals(image.range, pose, [(s.points, s.pose) for s in past], self.n_past,
-                                                self.config.residuals, self.setup.offsets, self.setup.signed)
+                                                self.residual_window, self.setup.offsets, self.setup.signed)
             if self.setup.free_space:
                 free = self.geometry.free_space(image, pose, [(s.range_image, s.pose) for s in past],
-                                                self.setup.offsets, self.config.residuals)
+                                                self.setup.offsets, self.residual_window)
                 residuals = np.concatenate([residuals, free])
             return residuals, residuals
         frames = [project(transform_points(s.points, relative_pose(pose, s.pose)), s.remission, self.sensor)

@@ -70,7 +70,7 @@ def residual_image(
     current_range: np.ndarray, past_range: np.ndarray, config: ResidualConfig, signed: bool = False
 ) -> np.ndarray:
     """|r_0 − r_j| / r_0 (or signed, (r_j − r_0) / r_0) where both ranges lie inside the window, 0 elsewhere."""
-    lo, hi = config.min_range, config.max_range
+    lo, hi = config.min_range, config.upper
     if kernels.enabled():
         return kernels.residual(current_range, past_range, lo, hi, signed)
     valid = (current_range > lo) & (current_range < hi) & (past_range > lo) & (past_range < hi)
@@ -157,7 +157,7 @@ def _free_space_against(current_xyz: np.ndarray, current_mask: np.ndarray, senso
     if kernels.enabled():
         planes = np.ascontiguousarray(xyz_planes(current_xyz), dtype=np.float32)
         return lambda past_range, to_past: kernels.free_space(
-            planes, occupied, to_past, sensor, past_range, config.min_range, config.max_range).reshape(shape)
+            planes, occupied, to_past, sensor, past_range, config.min_range, config.upper).reshape(shape)
     points = current_xyz.reshape(-1, 3)[occupied]
     return lambda past_range, to_past: _free_space(points, occupied, shape, past_range, to_past, sensor, config)
 
@@ -173,7 +173,7 @@ def _free_space(points: np.ndarray, occupied: np.ndarray, shape: tuple[int, ...]
         flat += pixels.u
         seen = past_range.reshape(-1)[flat]
         here = pixels.range
-        lo, hi = np.float32(config.min_range), np.float32(config.max_range)
+        lo, hi = np.float32(config.min_range), np.float32(config.upper)
         valid = pixels.in_image & (here > lo) & (here < hi) & (seen > lo) & (seen < hi)
         seen -= here
         seen /= here

@@ -74,7 +74,7 @@ def free_space_image(current_xyz: torch.Tensor, current_mask: torch.Tensor, past
     t = torch.as_tensor(to_past, dtype=points.dtype, device=points.device)
     v, u, here, inside = pixels_of(points @ t[:3, :3].T + t[:3, 3], sensor)
     seen = past_range[v, u]
-    lo, hi = config.min_range, config.max_range
+    lo, hi = config.min_range, config.upper
     valid = inside & (here > lo) & (here < hi) & (seen > lo) & (seen < hi)
     values = torch.where(valid, (seen - here) / torch.where(valid, here, torch.ones_like(here)),
                          torch.zeros_like(here))
@@ -87,7 +87,7 @@ def residual_images(current_range: torch.Tensor, current_pose: np.ndarray, past:
     """(n, H, W) residuals against past scans (device tensors, own frame) and their world poses (signed or not)."""
     device = current_range.device
     out = torch.zeros((n, sensor.height, sensor.width), device=device, dtype=torch.float32)
-    lo, hi = config.min_range, config.max_range
+    lo, hi = config.min_range, config.upper
     cur_ok = (current_range > lo) & (current_range < hi)
     inv_current = np.linalg.inv(current_pose)
     for j, (points, pose) in enumerate(past[:n]):

@@ -27,7 +27,13 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from ros2_mos.core.config import ResidualConfig, SensorConfig, read_yaml_mapping, sensor_preset
+from ros2_mos.core.config import (
+    DEFAULT_RESIDUAL_MAX_RANGE,
+    ResidualConfig,
+    SensorConfig,
+    read_yaml_mapping,
+    sensor_preset,
+)
 from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.core.metadata import ModelMetadata
 from ros2_mos.core.network_input import InputSetup
@@ -67,7 +73,7 @@ class TrainConfig:
     pose_noise: list[float] = field(default_factory=lambda: [0.0, 0.0])  # training inputs: σ_t (m), σ_r (deg)
     sensor: str | dict[str, Any] = "hdl64"
     residual_min_range: float = 2.0
-    residual_max_range: float = 50.0
+    residual_max_range: float = DEFAULT_RESIDUAL_MAX_RANGE
     train_sequences: list[str] = field(
         default_factory=lambda: ["00", "01", "02", "03", "04", "05", "06", "07", "09", "10"])
     valid_sequences: list[str] = field(default_factory=lambda: ["08"])
@@ -580,6 +586,8 @@ def metadata_from_checkpoint(state: Mapping[str, Any]) -> ModelMetadata:
             "network_kwargs": dict(state.get("network_kwargs", {})),
             "class_weights": list(state.get("class_weights", [])),
             "valid_iou_kind": "pixel IoU on the validation sequences (range image, no kNN)",
+            # The residual window's far end it was trained with: the pipeline computes its residuals out to it.
+            "residual_max_range": float(state.get("config", {}).get("residual_max_range", DEFAULT_RESIDUAL_MAX_RANGE)),
         },
     )
 
