@@ -177,6 +177,22 @@ def test_dataset_assembles_inputs_with_the_core(data_root, tmp_path):
     np.testing.assert_allclose(x[2:].numpy(), np.asarray(cache.residual[2, [0, 2]], np.float32))
 
 
+def test_full_history_only_trains_on_the_scans_whose_every_past_scan_exists(data_root, tmp_path):
+    """Scans 0..2 of a drive lack a scan 3 back: with full_history_only the training samples start at scan 3
+    (every second one with train_stride 2); validation keeps every scan."""
+    spec = CacheSpec(sensor=TEST_SENSOR, n_residual=3, n_frames=0)
+    cache = SequenceCache.build(data_root / "sequences" / "00", tmp_path, spec, workers=1)
+    setup = InputSetup("residual", 2, (1, 3))
+    assert [i for _, i in MosDataset([cache], setup, [0.0] * 5, [1.0] * 5).index] == list(range(len(cache)))
+    later = MosDataset([cache], setup, [0.0] * 5, [1.0] * 5, stride=2, first_scan=setup.history)
+    assert [i for _, i in later.index] == list(range(3, len(cache), 2))
+    with pytest.raises(ConfigError, match="first_scan"):
+        MosDataset([cache], setup, [0.0] * 5, [1.0] * 5, first_scan=-1)
+    trainer = Trainer(_config(data_root, tmp_path, past_offsets=[1, 3], full_history_only=True), data_root,
+                      show_progress=False)
+    assert min(i for _, i in trainer.train_set.index) == 3 and min(i for _, i in trainer.valid_set.index) == 0
+
+
 def test_augmented_sample_is_flip_then_rotation_then_crop(data_root, tmp_path):
     """The dataset's single column gather equals flip_y + rotate_columns + taking the first columns."""
     spec = CacheSpec(sensor=TEST_SENSOR, n_residual=2, n_frames=1)
@@ -402,6 +418,7 @@ def test_every_shipped_training_config_loads(path):
 def test_training_config_refuses_nonsense_values(data_root, tmp_path):
     for bad in ({"lovasz_weight": -1.0}, {"drop_max": 2.0}, {"lr": float("nan")}, {"weight_decay": float("inf")},
                 {"flip_y": 1.5}, {"max_minutes": 0.0}, {"residual_min_range": 60.0}, {"pose_noise": [0.1]},
-                {"past_offsets": [2, 1], "n_past": 2}, {"image_channels": ["range", "speed"]}):
+                {"past_offsets": [2, 1], "n_past": 2}, {"image_channels": ["range", "speed"]},
+                {"full_history_only": "yes"}):
         with pytest.raises(ConfigError):
             _config(data_root, tmp_path, **bad)

@@ -423,7 +423,11 @@ class MosDataset(Dataset):
         augment: AugmentConfig | None = None,
         stride: int = 1,
         seed: int = 0,
+        first_scan: int = 0,
     ) -> None:
+        """``first_scan``: samples start at this scan of each sequence (every ``stride``-th from there)."""
+        if isinstance(first_scan, bool) or not isinstance(first_scan, int) or first_scan < 0:
+            raise ConfigError(f"first_scan must be an integer >= 0, got {first_scan!r}")
         for cache in caches:
             if not cache.spec.serves(setup):
                 raise ConfigError(f"cache {cache.directory} (residual offsets {list(cache.spec.stored_offsets)}, free "
@@ -433,7 +437,8 @@ class MosDataset(Dataset):
         self.means = np.asarray(means, np.float32)
         self.stds = np.asarray(stds, np.float32)
         self.augment = augment
-        self.index = [(c, i) for c, cache in enumerate(self.caches) for i in range(0, len(cache), max(1, stride))]
+        self.index = [(c, i) for c, cache in enumerate(self.caches)
+                      for i in range(first_scan, len(cache), max(1, stride))]
         self.seed = seed
         self.epoch = 0
         if augment and augment.crop_width is not None and self.caches:

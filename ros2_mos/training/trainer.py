@@ -100,6 +100,10 @@ class TrainConfig:
     flip_y: float = 0.5
     drop_max: float = 0.1
     train_stride: int = 1
+    # Train only on scans with every past scan the input asks for (scan index >= the largest offset). The first
+    # scans of a drive read 0 where a past scan is missing, which is also what a static surface reads; moving
+    # labels there teach "a car-shaped blob with zero residuals moves" (benchmarks/experiments.md, row 26).
+    full_history_only: bool = False
     valid_stride: int = 1
     workers: int = 0
     cache_workers: int = 2
@@ -142,6 +146,8 @@ class TrainConfig:
             raise ConfigError(f"crop_width must be >= 16, got {self.crop_width}")
         if not 0 <= self.residual_min_range < self.residual_max_range:
             raise ConfigError("need 0 <= residual_min_range < residual_max_range")
+        if not isinstance(self.full_history_only, bool):
+            raise ConfigError(f"full_history_only must be true or false, got {self.full_history_only!r}")
         if self.init_from is not None and (not isinstance(self.init_from, str) or not self.init_from):
             raise ConfigError(f"init_from must be a checkpoint path, got {self.init_from!r}")
         self.setup  # validates kind / n_past / offsets / channels
@@ -341,7 +347,7 @@ class Trainer:
         setup = config.setup
         augment = AugmentConfig(config.rotate, config.flip_y, config.drop_max, config.crop_width)
         self.train_set = MosDataset(self.train_caches, setup, self.means, self.stds, augment, config.train_stride,
-                                    config.seed)
+                                    config.seed, first_scan=setup.history if config.full_history_only else 0)
         self.valid_set = MosDataset(self.valid_caches, setup, self.means, self.stds, None, config.valid_stride)
         if len(self.train_set) == 0:
             raise DatasetError("no training scans")
