@@ -47,11 +47,11 @@ for p in b t e s; do
 done
 train="[${train#,}]"
 # Each sensor's latest CPU recipe and the checkpoint its shipped model came from (benchmarks/experiments.md).
-config_of() { case $1 in vlp16) echo fastmos_vlp16_free;; vlp32c) echo fastmos_vlp32c_slowfree;; os1-64) echo fastmos_os164_slow;;
+config_of() { case $1 in vlp16) echo fastmos_vlp16_free;; vlp32c) echo fastmos_vlp32c_far;; os1-64) echo fastmos_os164_slow;;
               os1-128) echo fastmos_os1128_slow;; hdl64) echo fastmos_beams;;
               *) echo "unknown sensor $1" >&2; return 1;; esac; }
 init_of() { case $1 in vlp16) echo checkpoints/fastmos_vlp16_free_best.pt;;
-                       vlp32c) echo checkpoints/fastmos_vlp32c_slowfree_best.pt;;
+                       vlp32c) echo checkpoints/fastmos_vlp32c_far_best.pt;;
                        os1-64) echo checkpoints/fastmos_os164_slow_best.pt;;
                        os1-128) echo checkpoints/fastmos_os1128_slow_best.pt;;
                        *) echo checkpoints/fastmos_beams_last.pt;; esac; }
