@@ -51,7 +51,8 @@ def infer(
 
     pipeline = MosPipeline(load_config(params, model, sensor))
     typer.echo(f"model {pipeline.model.path.name}: {pipeline.model.metadata.network}, "
-               f"{pipeline.setup.label}, sensor {pipeline.sensor.name}, provider {pipeline.model.provider}")
+               f"{pipeline.setup.label}, residuals to {pipeline.residual_window.upper:g} m, "
+               f"sensor {pipeline.sensor.name}, provider {pipeline.model.provider}")
     for seq_dir in sequence_dirs(sequence_dir, sequences):
         seq = SemanticKittiSequence(seq_dir)
         score = MovingIoU()

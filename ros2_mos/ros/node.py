@@ -140,7 +140,8 @@ class MosNode(Node):
         outputs = ", ".join(self._pubs[key].topic_name for key in OUTPUT_KEYS)  # as resolved, remappings included
         self.get_logger().info(
             f"ready in {time.perf_counter() - t0:.2f} s: model {p.model.path.name} ({p.model.metadata.network}, "
-            f"{p.setup.label}, threshold {p.threshold:.2f}, {p.model.provider}), sensor {p.sensor.name} "
+            f"{p.setup.label}, threshold {p.threshold:.2f}, residuals to {p.residual_window.upper:g} m, "
+            f"{p.model.provider}), sensor {p.sensor.name} "
             f"{p.sensor.height}x{p.sensor.width}, geometry {p.config.geometry_backend}"
             f"{f' ({kernels.status()})' if p.config.geometry_backend == 'numpy' else ''}; {self._sub.topic_name} "
             f"({'reliable' if s.reliable else 'best effort'}) -> {outputs}")
