@@ -328,7 +328,7 @@ def test_residuals_reach_out_to_the_models_own_window_unless_configured(tmp_path
     assert residual_on_the_wall(configured) == (45.0, 0.0)
 
 
-@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0, 0.0, 2000.0, True, "80"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0, 0.0, 2000.0, True, "80", None])
 def test_a_models_residual_window_must_be_a_range(tmp_path, bad):
     path = make_threshold_model(tmp_path / "m.onnx")
     _set_metadata(path, residual_max_range=bad)

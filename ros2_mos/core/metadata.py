@@ -14,8 +14,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ros2_mos.core.config import MAX_RANGE_LIMIT, SensorConfig
-from ros2_mos.core.errors import ModelError
+from ros2_mos.core.config import ResidualConfig, SensorConfig
+from ros2_mos.core.errors import ConfigError, ModelError
 from ros2_mos.core.network_input import DEFAULT_MEANS, DEFAULT_STDS, InputSetup
 
 METADATA_KEY = "ros2_mos"
@@ -64,9 +64,12 @@ class ModelMetadata:
             check_threshold(meta.extra["recommended_threshold"], "model metadata recommended_threshold")
         if "residual_max_range" in meta.extra:
             far = meta.extra["residual_max_range"]
-            if isinstance(far, bool) or not isinstance(far, (int, float)) or not 0.0 < far <= MAX_RANGE_LIMIT:
-                raise ModelError(f"model metadata residual_max_range must be a number in (0, {MAX_RANGE_LIMIT:g}] m, "
-                                 f"got {far!r}")
+            try:  # the residuals.max_range parameter's own limits (its knob), and a number, not "unset"
+                if far is None:
+                    raise ConfigError(f"must be a number, got {far!r}")
+                ResidualConfig(max_range=far)
+            except ConfigError as exc:
+                raise ModelError(f"model metadata residual_max_range: {exc}") from None
         return meta
 
     @property
