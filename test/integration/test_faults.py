@@ -247,12 +247,13 @@ def test_scattered_points_are_skipped_and_a_slow_registration_keeps_the_diagnost
     during = [t for t in arrivals if started <= t <= finished]
     gaps = np.diff([started, *during, finished])
     # One uninterrupted KISS-ICP call holds the GIL, so no diagnostics, for the whole registration: a gap at least
-    # as long as the registration. In slices the 0.2 s timer gets through between them. The bound leaves room for a
-    # registration that converged soon after its long first slice (32 iterations; CI: a gap of 1.28 s in 1.55 s) and
-    # for a loaded 2-core machine (0.85 s in 1.28 s with slices of 0.26 s and 0.05 s); that the registration ran in
-    # slices at all is checked directly above.
+    # as long as the registration. In slices, with a short sleep between them (ICP_YIELD_S), the 0.2 s timer gets
+    # through between them: several arrivals, typically 0.15-0.3 s apart. The bounds leave room for the odd slice that
+    # takes 10x the others (0.64-0.69 s for 8 iterations, seen here and on CI, with the gap around it near 1 s) and
+    # for a loaded 2-core machine; that the registration ran in slices at all is checked directly.
     assert len(slices) >= 2, f"one call into KISS-ICP ({slices}): the registration was not sliced"
-    assert len(during) >= 3 and gaps.max() < 0.9 * odometry_s, (gaps.max(), slices, odometry_s, len(during))
+    report = (gaps.round(2).tolist(), [round(s, 2) for s in slices], odometry_s)
+    assert len(during) >= 2 and gaps.max() < 0.9 * odometry_s and np.median(gaps) < 0.5, report
 
 
 # ----------------------------------------------------------------------------- hostile PointCloud2 to the node
