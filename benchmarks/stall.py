@@ -3,6 +3,7 @@
     python benchmarks/stall.py after     # the code as it is
     python benchmarks/stall.py before    # plausibility check off, one KISS-ICP call per scan (the code before)
     python benchmarks/stall.py sliced    # plausibility check off, registration in slices (liveness alone)
+    python benchmarks/stall.py sliced --no-yield  # the same without the short sleep between slices (round 13's code)
 
 The node runs the shipped HDL-64E model with diagnostics every second (the defaults) on its own ROS domain.
 It gets 3 simulated HDL-64E scans, 2 clouds of 127k points uniformly random within +-50 m (the issue's
@@ -26,6 +27,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("mode", choices=["after", "before", "sliced"])
     parser.add_argument("--domain", type=int, default=77)
+    parser.add_argument("--no-yield", action="store_true", help="no sleep between ICP slices (ICP_YIELD_S = 0)")
     args = parser.parse_args()
     mode, domain = args.mode, args.domain
 
@@ -34,9 +36,11 @@ def main() -> None:
 
     if mode in ("before", "sliced"):
         pipeline.implausible_message = lambda image: None
+    if args.no_yield:
+        odometry.ICP_YIELD_S = 0.0
     if mode == "before":  # one call of up to 500 iterations, as kiss_icp's own align_points_to_map
         odometry.ICP_FIRST_SLICE = 500
-    sys.path.insert(0, str(ROOT / "test" / "integration"))
+    sys.path[:0] = [str(ROOT / "test" / "integration"), str(ROOT / "test")]  # the harness imports test/scenes.py
     from ros_harness import BASE_STAMP, TYPES, cloud, running_harness
 
     from ros2_mos.sim import SequenceSimulator
