@@ -65,3 +65,29 @@ def test_split_registration_is_kiss_icp_1_3_0s_register_frame():
         theirs.register_frame(points, timestamps=np.array([]))
         np.testing.assert_allclose(pose, theirs.last_pose, atol=1e-6)
     assert np.linalg.norm(pose[:3, 3]) > 1.0, "the ego vehicle should move in this drive"
+
+
+def test_a_registration_past_its_first_slice_sleeps_between_slices(monkeypatch):
+    """The ICP runs in slices with the GIL free between them; after the check that the first slice converged,
+    it sleeps ICP_YIELD_S between slices so that another thread (the diagnostics timer) gets through."""
+    import time
+    from types import SimpleNamespace
+
+    pytest.importorskip("kiss_icp.kiss_icp")
+    import ros2_mos.core.odometry as odometry
+    from ros2_mos.core.config import OdometryConfig
+
+    naps: list[float] = []
+    monkeypatch.setattr(odometry, "time", SimpleNamespace(perf_counter=time.perf_counter, sleep=naps.append))
+    monkeypatch.setattr(odometry, "ICP_FIRST_SLICE", 1)  # one-iteration slices: every registration takes several
+    monkeypatch.setattr(odometry, "ICP_SLICE", 1)
+    odom = odometry.KissIcpOdometry(OdometryConfig(point_stride=1))
+    counts = []
+    for item in SequenceSimulator(4, "benchmark", seed=3):
+        naps.clear()
+        odom.register(item.scan.points.astype(np.float64))
+        slices = len(odom.last_slice_seconds)
+        counts.append(slices)
+        # none before the first check (slice 2), one before each slice after it
+        assert naps == [odometry.ICP_YIELD_S] * max(0, slices - 2), (slices, naps)
+    assert max(counts) >= 3, f"no registration went past its second slice: {counts}"
