@@ -64,9 +64,9 @@ class ModelMetadata:
             check_threshold(meta.extra["recommended_threshold"], "model metadata recommended_threshold")
         if "residual_max_range" in meta.extra:
             far = meta.extra["residual_max_range"]
-            try:  # the residuals.max_range parameter's own limits (its knob), and a number, not "unset"
-                if far is None:
-                    raise ConfigError(f"must be a number, got {far!r}")
+            if far is None:  # the knob's "unset" (the model's own window) is not a window
+                raise ModelError("model metadata residual_max_range: must be a number, got None")
+            try:  # the residuals.max_range parameter's own limits
                 ResidualConfig(max_range=far)
             except ConfigError as exc:
                 raise ModelError(f"model metadata residual_max_range: {exc}") from None
