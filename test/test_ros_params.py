@@ -114,3 +114,33 @@ def test_params_command_prints_a_file_the_node_reads(tmp_path):
     assert resolve(load_params_file(tmp_path / "p.yaml")) == defaults()
     table = CliRunner().invoke(app, ["params", "--markdown"])
     assert table.output.strip() == describe()
+
+
+#: Bounds that are valid alone but not beside another parameter's default (cross-checks of the dataclasses).
+_COMBINATIONS = {("sensor.fov_up_deg", -90.0), ("sensor.fov_down_deg", 90.0), ("sensor.max_range", 0.0),
+                 ("postprocess.k", 225), ("postprocess.window", 1), ("odometry.max_range", 0.0)}
+
+
+@pytest.mark.parametrize("spec", [p for p in PARAMS if p.type in (int, float) and (p.min, p.max) != (None, None)],
+                         ids=lambda p: p.name)
+def test_the_advertised_range_is_the_checked_range(spec):
+    """Issue 32.6: every bound the table advertises (descriptor, params file, docs) is accepted (`threshold: 1.0`
+    was refused), and a step beyond it is refused, in the same words."""
+    from ros2_mos.ros.params import check_value
+
+    for bound, beyond in ((spec.min, -1), (spec.max, 1)):
+        if bound is None:
+            continue
+        extra = {"sensor.preset": "custom"} if spec.name.startswith("sensor.") else {}
+        if not (bound == spec.min and spec.knob.above) and (spec.name, spec.type(bound)) not in _COMBINATIONS:
+            values = {spec.name: spec.type(bound), **extra}
+            mos_config(values)
+            node_settings(values)
+        with pytest.raises(ConfigError, match=spec.name):
+            check_value(spec, spec.type(bound) + beyond)
+
+
+def test_an_integer_is_taken_for_a_float_parameter():
+    """Issue 32.6: `threshold: 1` in a params file works as `threshold: 1.0`."""
+    assert mos_config({"threshold": 1}).threshold == 1.0
+    assert resolve({"reset_after_gap": 2})["reset_after_gap"] == 2.0

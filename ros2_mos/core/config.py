@@ -342,6 +342,8 @@ class MosConfig:
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     postprocess: PostprocessConfig = field(default_factory=PostprocessConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    # Its knob's limits are the whole check: the range the descriptor and the params file advertise (1 is allowed:
+    # only a certain mover is labelled moving).
     threshold: float = knob(0.0, "moving probability at or above which a point is labelled moving; 0 = the model's "
                                  "recommended threshold (0.5 if none)", min=0.0, max=1.0)
     intra_op_threads: int = knob(0, "ONNX Runtime threads; 0 = runtime default", min=0, max=256)
@@ -357,8 +359,6 @@ class MosConfig:
         check_knobs(self, "mos")
         if not re.fullmatch(r"auto|cpu|cuda(:[0-9]+)?", str(self.device)):
             raise ConfigError(f"device must be auto, cpu, cuda or cuda:N, got {self.device!r}")
-        if self.threshold == 1.0:
-            raise ConfigError(f"threshold must be in (0, 1), or 0 for the model's own, got {self.threshold}")
 
 
 def _from_mapping(cls: type, data: Mapping[str, Any], what: str, allow_objects: bool = False) -> Any:

@@ -84,13 +84,19 @@ class MosNode(Node):
         from rclpy.exceptions import ParameterException
 
         values: dict[str, Any] = {}
+        overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps no public list of them
         for spec in PARAMS:
+            default, ignore_override = spec.default, False
+            given = overrides.get(spec.name)
+            if spec.type is float and given is not None and type(given.value) is int:
+                # `threshold: 1` in a params file: rclpy would refuse an INTEGER for a DOUBLE; the package takes it
+                # (check_value does the same for the commands).
+                default, ignore_override = float(given.value), True
             try:
-                param = self.declare_parameter(spec.name, spec.default, _descriptor(spec))
+                param = self.declare_parameter(spec.name, default, _descriptor(spec), ignore_override=ignore_override)
             except ParameterException as exc:
                 raise ConfigError(f"parameter {spec.name!r}: {exc}") from None
             values[spec.name] = param.value
-        overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps no public list of them
         unknown = sorted(n for n in overrides if n not in self._parameters and not n.startswith("qos_overrides."))
         if unknown:
             raise ConfigError(f"unknown parameters {unknown} (typo?); see config/mos.yaml for the known ones")
