@@ -70,3 +70,20 @@ def test_export_keeps_training_mode(tmp_path):
     net = build_network("fastmos", meta.input.channels).train()
     export_onnx(net, meta, tmp_path / "m.onnx")
     assert net.training
+
+
+def test_export_names_the_training_config(tmp_path):
+    from ros2_mos.core.metadata import TRAINING_CONFIG_KEY, read_training_config
+
+    meta = _meta()
+    net = build_network("fastmos", meta.input.channels)
+    export_onnx(net, meta, tmp_path / "a.onnx", training_config="configs/x.yaml")
+    assert read_training_config(tmp_path / "a.onnx") == "configs/x.yaml"
+    assert read_metadata(tmp_path / "a.onnx") == meta
+    # from the metadata's extra (export_checkpoint(..., extra=...)): its own entry, not kept in the JSON
+    named = ModelMetadata(**{**meta.__dict__, "extra": {**meta.extra, TRAINING_CONFIG_KEY: "configs/y.yaml"}})
+    export_onnx(net, named, tmp_path / "b.onnx")
+    assert read_training_config(tmp_path / "b.onnx") == "configs/y.yaml"
+    assert TRAINING_CONFIG_KEY not in read_metadata(tmp_path / "b.onnx").extra
+    export_onnx(net, meta, tmp_path / "c.onnx")
+    assert read_training_config(tmp_path / "c.onnx") is None

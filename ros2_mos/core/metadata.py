@@ -20,6 +20,9 @@ from ros2_mos.core.network_input import DEFAULT_MEANS, DEFAULT_STDS, InputSetup
 
 METADATA_KEY = "ros2_mos"
 FORMAT_VERSION = 1
+#: A second ``metadata_props`` entry: the training config (its repository path, e.g. ``configs/x.yaml``) that made
+#: the model. Provenance only: the pipeline never reads it.
+TRAINING_CONFIG_KEY = "training_config"
 
 
 @dataclass
@@ -102,6 +105,37 @@ def write_recommended_threshold(path: str | Path, threshold: float) -> None:
     meta = ModelMetadata.from_json(entry.value)
     meta.extra["recommended_threshold"] = threshold
     entry.value = meta.to_json()
+    save_model_atomically(proto, path)
+
+
+def read_training_config(path: str | Path) -> str | None:
+    """The training config a model names in its ``training_config`` metadata entry; None if it names none."""
+    import onnx
+
+    try:
+        proto = onnx.load(str(path), load_external_data=False)
+    except Exception as exc:  # onnx raises several types for unreadable files
+        raise ModelError(f"cannot read model {path}: {exc}") from None
+    return next((p.value for p in proto.metadata_props if p.key == TRAINING_CONFIG_KEY), None)
+
+
+def write_training_config(path: str | Path, config: str | Path) -> None:
+    """Name the training config that made a model (atomically replaces the file; nothing else changes)."""
+    import onnx
+
+    config = Path(config).as_posix()
+    if not config or config == ".":
+        raise ModelError("training_config must be a non-empty path")
+    path = Path(path)
+    try:
+        proto = onnx.load(str(path))
+    except Exception as exc:  # onnx raises several types for unreadable files
+        raise ModelError(f"cannot read model {path}: {exc}") from None
+    entry = next((p for p in proto.metadata_props if p.key == TRAINING_CONFIG_KEY), None)
+    if entry is None:
+        entry = proto.metadata_props.add()
+        entry.key = TRAINING_CONFIG_KEY
+    entry.value = config
     save_model_atomically(proto, path)
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import io
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,7 @@ from ros2_mos.core.errors import ModelError
 
 # The tensor names are the contract with the runtime: one definition, in the runtime.
 from ros2_mos.core.inference import INPUT_NAME, OUTPUT_NAME  # noqa: E402
-from ros2_mos.core.metadata import METADATA_KEY, ModelMetadata, save_model_atomically
+from ros2_mos.core.metadata import METADATA_KEY, TRAINING_CONFIG_KEY, ModelMetadata, save_model_atomically
 
 DEFAULT_OPSET = 17
 
@@ -87,16 +87,29 @@ def export_onnx(
     check: bool = True,
     atol: float = 1e-4,
     seed: int = 0,
+    training_config: str | Path | None = None,
 ) -> ExportReport:
     """Export ``model`` (logits network) with a softmax head and ``metadata`` to ``path``.
 
     The input shape is (1, metadata.input.channels, sensor.height, sensor.width).
     With ``check`` the file is run in ONNX Runtime on a random normal input and
     compared with PyTorch; a max abs difference above ``atol`` raises ModelError.
+    ``training_config`` (the repository path of the config that made the model; also taken from
+    ``metadata.extra["training_config"]``, e.g. ``export_checkpoint(..., extra={"training_config": ...})``)
+    is written as its own ``training_config`` metadata entry.
     """
     import onnx
 
     path = Path(path)
+    if TRAINING_CONFIG_KEY in metadata.extra:
+        extra = dict(metadata.extra)
+        named = extra.pop(TRAINING_CONFIG_KEY)
+        training_config = training_config if training_config is not None else named
+        metadata = replace(metadata, extra=extra)
+    if training_config is not None:
+        training_config = Path(training_config).as_posix()
+        if not training_config or training_config == ".":
+            raise ModelError("training_config must be a non-empty path")
     channels = metadata.input.channels
     h, w = metadata.sensor.height, metadata.sensor.width
     was_training = model.training
@@ -123,6 +136,10 @@ def export_onnx(
     entry = proto.metadata_props.add()
     entry.key = METADATA_KEY
     entry.value = metadata.to_json()
+    if training_config is not None:
+        named_config = proto.metadata_props.add()
+        named_config.key = TRAINING_CONFIG_KEY
+        named_config.value = training_config
     proto.producer_name = "ros2_mos"
     proto.doc_string = f"ros2_mos MOS model: {metadata.network}, {metadata.input.label}, {metadata.sensor.name}"
     onnx.checker.check_model(proto)

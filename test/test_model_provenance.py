@@ -1,0 +1,56 @@
+"""Every shipped model names the training config that made it, and that config is in the repository."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ros2_mos.core.errors import ModelError
+from ros2_mos.core.metadata import TRAINING_CONFIG_KEY, read_training_config, write_training_config
+
+REPO = Path(__file__).resolve().parents[1]
+MODELS = sorted((REPO / "ros2_mos" / "models").glob("*.onnx"))
+
+
+def test_the_five_sensor_models_ship():
+    assert {m.stem for m in MODELS} == {"default", "vlp16", "vlp32c", "os1-64", "os1-128"}
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda p: p.stem)
+def test_every_shipped_model_names_an_existing_training_config(model):
+    config = read_training_config(model)
+    assert config, f"{model.name} names no {TRAINING_CONFIG_KEY}"
+    assert config.startswith("configs/") and not config.startswith("configs/experiments/"), config
+    assert (REPO / config).is_file(), f"{model.name} names {config}, which is not in the repository"
+    from ros2_mos.training.trainer import TrainConfig
+
+    TrainConfig.from_yaml(REPO / config)  # a config the trainer reads
+
+
+def test_naming_a_config_changes_no_output(tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    path = tmp_path / "m.onnx"
+    shutil.copy(REPO / "ros2_mos" / "models" / "vlp16.onnx", path)
+    x = None
+
+    def run() -> np.ndarray:
+        nonlocal x
+        session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        node_input = session.get_inputs()[0]
+        if x is None:
+            x = np.random.default_rng(0).normal(size=node_input.shape).astype(np.float32)
+        return session.run(None, {node_input.name: x})[0]
+
+    before = run()
+    write_training_config(path, "configs/elsewhere.yaml")
+    write_training_config(path, "configs/other.yaml")  # replaced, not added twice
+    assert read_training_config(path) == "configs/other.yaml"
+    import onnx
+
+    assert [p.key for p in onnx.load(str(path)).metadata_props].count(TRAINING_CONFIG_KEY) == 1
+    assert run().tobytes() == before.tobytes()
+    with pytest.raises(ModelError):
+        write_training_config(path, "")
