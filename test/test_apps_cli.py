@@ -12,7 +12,7 @@ from ros2_mos.cli import app
 from ros2_mos.io.semantic_kitti import read_poses
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIG = REPO / "configs" / "fastmos_vlp16.yaml"
+CONFIG = REPO / "configs" / "fastmos_vlp16_free.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +58,7 @@ def test_outputs_that_cannot_be_written_fail_before_any_work(street, tmp_path):
         (["map", str(street), "--out", str(a_file / "m.ply")], f"--out {a_file / 'm_raw.ply'}: {a_file} is a file"),
         (["map", str(street), "--out", str(tmp_path / "m.ply"), "--png", str(tmp_path)],
          "is a folder; expected a file"),
-        (["export", str(REPO / "checkpoints/fastmos_beams_last.pt"), "--out", str(a_file / "m.onnx")],
+        (["export", str(REPO / "checkpoints/fastmos_beams_free16_best.pt"), "--out", str(a_file / "m.onnx")],
          f"{a_file} is a file"),
         (["train", "--config", str(CONFIG), "--data", str(tmp_path / "none"), "--out", str(a_file)],
          f"out_dir {a_file} is a file; expected a folder"),

@@ -408,9 +408,10 @@ def test_fine_tuning_starts_from_the_checkpoints_weights_and_normalisation(data_
         Trainer(_config(data_root, tmp_path / "d", init_from=str(truncated)), data_root, show_progress=False)
 
 
-@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[1] / "configs").glob("*.yaml")),
-                         ids=lambda p: p.name)
-def test_every_shipped_training_config_loads(path):
+@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[1] / "configs").rglob("*.yaml")),
+                         ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_training_config_loads(path):
+    """The shipped models' recipes in configs/ and the experiments in configs/experiments/."""
     config = TrainConfig.from_yaml(path)
     assert config.setup.channels > 0 and config.train_sequences
 

@@ -48,13 +48,13 @@ done
 train="[${train#,}]"
 # Each sensor's latest CPU recipe and the checkpoint its shipped model came from (benchmarks/experiments.md).
 config_of() { case $1 in vlp16) echo fastmos_vlp16_free;; vlp32c) echo fastmos_vlp32c_far;; os1-64) echo fastmos_os164_slow;;
-              os1-128) echo fastmos_os1128_slow;; hdl64) echo fastmos_beams;;
+              os1-128) echo fastmos_os1128_slow;; hdl64) echo fastmos_beams_free16;;
               *) echo "unknown sensor $1" >&2; return 1;; esac; }
 init_of() { case $1 in vlp16) echo checkpoints/fastmos_vlp16_free_best.pt;;
                        vlp32c) echo checkpoints/fastmos_vlp32c_far_best.pt;;
                        os1-64) echo checkpoints/fastmos_os164_slow_best.pt;;
                        os1-128) echo checkpoints/fastmos_os1128_slow_best.pt;;
-                       *) echo checkpoints/fastmos_beams_last.pt;; esac; }
+                       *) echo checkpoints/fastmos_beams_free16_best.pt;; esac; }
 work=${WORK:-/dev/shm/ros2_mos}
 mkdir -p "$work" || exit 1
 common="train_sequences=$train valid_sequences=[bv0,tv0,ev0] poses=dataset valid_stride=2 workers=3 \
