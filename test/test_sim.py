@@ -10,6 +10,7 @@ import pytest
 
 from ros2_mos.core.config import SENSOR_PRESETS, SensorConfig
 from ros2_mos.core.errors import ConfigError
+from ros2_mos.io.conventions import label_dirs, main_convention
 from ros2_mos.io.labels import MOVING_IDS, instance_ids, semantic_ids
 from ros2_mos.io.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_label, read_poses
 from ros2_mos.sim import SequenceSimulator, format_stats, sequence_dir, sim_preset, simulate_sequence, with_effects
@@ -142,28 +143,53 @@ def test_poses_chain_with_the_ego_motion(written: tuple[Path, object]) -> None:
 
 
 def test_moving_labels_exactly_on_objects_whose_pose_changed(written: tuple[Path, object]) -> None:
+    """labels_instant/: moving exactly where the pose changed since the previous scan; labels/ (the default,
+    SemanticKITTI's convention): moving in every scan of an agent that moved at some scan within the sensor's range,
+    also in the scans where it stands."""
     out, _ = written
+    root = sequence_dir(out, "00")
+    assert main_convention(root) == "semantickitti" and list(label_dirs(root)) == ["semantickitti", "instant"]
     sim = SequenceSimulator(25, "benchmark", seed=11, sensor=SMALL, name="00")
     agents = {a.inst: a for a in sim.traffic.agents}
     parked = set(sim.static.parked_ids.tolist())
-    seen_moving = 0
+    reach = sim.lidar.max_range
+    seen_moving = waiting_movers = 0
     for k in range(25):
-        labels = read_label(sequence_dir(out, "00") / "labels" / f"{k:06d}.label")
-        sem, inst = semantic_ids(labels), instance_ids(labels)
-        moving = np.isin(sem, MOVING_IDS)
-        assert set(np.unique(inst[moving]).tolist()) <= set(agents)
-        for i in np.unique(inst[inst > 0]).tolist():
-            s = np.unique(sem[inst == i])
-            assert len(s) == 1, "one object, one label per scan"
-            if i in parked:
-                assert s[0] == 10
-                continue
-            agent = agents[i]
-            assert (s[0] == agent.kind.moving_id) == bool(agent.moving[k])
-            assert s[0] in (agent.kind.moving_id, agent.kind.static_id)
-            seen_moving += int(agent.moving[k])
-        assert (inst[np.isin(sem, [40, 48, 50, 70, 71, 72, 80])] == 0).all()
+        instant = read_label(root / "labels_instant" / f"{k:06d}.label")
+        semantickitti = read_label(root / "labels" / f"{k:06d}.label")
+        assert np.array_equal(instance_ids(instant), instance_ids(semantickitti))
+        for labels, convention in ((instant, "instant"), (semantickitti, "semantickitti")):
+            sem, inst = semantic_ids(labels), instance_ids(labels)
+            moving = np.isin(sem, MOVING_IDS)
+            assert set(np.unique(inst[moving]).tolist()) <= set(agents)
+            for i in np.unique(inst[inst > 0]).tolist():
+                s = np.unique(sem[inst == i])
+                assert len(s) == 1, "one object, one label per scan"
+                if i in parked:
+                    assert s[0] == 10
+                    continue
+                agent = agents[i]
+                if convention == "instant":
+                    expected = bool(agent.moving[k])
+                    seen_moving += int(expected)
+                else:
+                    d2 = (agent.x[1:] - sim.traffic.ego_x[1:]) ** 2 + (agent.y[1:] - sim.traffic.ego_y[1:]) ** 2
+                    expected = bool((agent.moving & (d2 < reach**2)).any())
+                    waiting_movers += int(expected and not agent.moving[k])
+                assert (s[0] == agent.kind.moving_id) == expected, (convention, k, i)
+                assert s[0] in (agent.kind.moving_id, agent.kind.static_id)
+            assert (inst[np.isin(sem, [40, 48, 50, 70, 71, 72, 80])] == 0).all()
     assert seen_moving > 0
+    assert waiting_movers > 0, "this drive has a mover that stands in some scan: the conventions differ there"
+
+
+def test_relabel_movers_gives_the_listed_instances_their_moving_id() -> None:
+    from ros2_mos.sim.traffic import relabel_movers
+
+    labels = np.array([10 | 5 << 16, 30 | 7 << 16, 40, 10 | 9 << 16, 252 | 5 << 16], np.uint32)
+    out = relabel_movers(labels, {5: 252, 7: 254})
+    assert out.tolist() == [252 | 5 << 16, 254 | 7 << 16, 40, 10 | 9 << 16, 252 | 5 << 16]
+    assert relabel_movers(labels, {}).tolist() == labels.tolist()
 
 
 def test_same_seed_same_bytes_other_seed_other_scene(tmp_path: Path) -> None:

@@ -36,7 +36,7 @@ def _simulate(job: tuple[str, str, int, int, bool, bool, str]) -> str:
 
     root, name, scans, seed, large_trees, beam_layout, sensor = job
     preset = randomized_for_sequence(sim_preset(PRESET_OF_PREFIX[name[0]]), seed, name, large_trees, beam_layout)
-    simulate_sequence(root, name, scans, preset, seed, sensor=sensor)
+    simulate_sequence(root, name, scans, preset, seed, sensor=sensor, convention="instant")
     return name
 
 

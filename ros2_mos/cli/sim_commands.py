@@ -28,6 +28,10 @@ def simulate(
     frame_id: str = typer.Option("velodyne", help="frame_id of the clouds in the bag"),
     stats: bool = typer.Option(False, "--stats",
                                help="Print statistics: points/scan, moving fraction, objects, speeds"),
+    convention: str = typer.Option("semantickitti", help="Label convention of labels/: semantickitti (an object "
+                                   "that moves while in range is moving in every scan, also while it waits: "
+                                   "SemanticKITTI's) or instant (moving while it moves); the other goes to "
+                                   "labels_<other>/"),
     randomize: bool = typer.Option(False, "--randomize/--no-randomize",
                                    help="Draw each sequence's sensor noise, dropout, skew and mounting at random "
                                         "(training data; seeded by --seed and the sequence name)"),
@@ -36,6 +40,7 @@ def simulate(
     from tqdm import tqdm
 
     from ros2_mos.core.config import sensor_preset
+    from ros2_mos.io.conventions import CONVENTIONS
     from ros2_mos.sim import format_stats, sequence_dir, sim_preset, simulate_sequence, with_effects, write_sequence_bag
     from ros2_mos.sim.presets import randomized_for_sequence
 
@@ -45,6 +50,8 @@ def simulate(
     if bad:
         fail(f"unexpected arguments: {' '.join(bad)}")
     names = [n for item in [*sequences, *extra] for n in item.replace(",", " ").split()]
+    if convention not in CONVENTIONS:
+        fail(f"unknown --convention {convention!r}: use one of {', '.join(CONVENTIONS)}")
     if len(set(names)) != len(names):
         fail(f"sequence names repeat: {' '.join(names)}")
     if not names:
@@ -62,7 +69,8 @@ def simulate(
     for name in names:
         preset_used = randomized_for_sequence(sim, seed, name) if randomize else sim
         with tqdm(total=scans, desc=f"sequence {name}", unit="scan") as bar:
-            results.append(simulate_sequence(out_dir, name, scans, preset_used, seed, sensor_cfg, progress=bar.update))
+            results.append(simulate_sequence(out_dir, name, scans, preset_used, seed, sensor_cfg, progress=bar.update,
+                                               convention=convention))
         if bag:
             bag_path = out_dir / "bags" / name
             bag_path.parent.mkdir(parents=True, exist_ok=True)
@@ -70,6 +78,7 @@ def simulate(
             typer.echo(f"wrote {bag_path} ({count} PointCloud2 messages on {topic}, {bag_storage})")
     for r in results:
         typer.echo(f"wrote {sequence_dir(out_dir, r.name)}: {r.n_scans} scans, "
-                   f"{r.n_scans / max(r.seconds, 1e-9):.1f} scans/s, {100 * r.moving_fraction:.2f} % moving points")
+                   f"{r.n_scans / max(r.seconds, 1e-9):.1f} scans/s, {100 * r.moving_fraction:.2f} % moving points "
+                   f"(instant), labels/ in the {convention} convention")
     if stats:
         typer.echo(format_stats(results))

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ros2_mos.core.errors import DatasetError
+
 IGNORE = -1
 STATIC = 0
 MOVING = 1
@@ -26,6 +28,7 @@ SEMANTIC_NAMES: dict[int, str] = {
     40: "road", 44: "parking", 48: "sidewalk", 49: "other-ground", 50: "building",
     51: "fence", 52: "other-structure", 60: "lane-marking", 70: "vegetation", 71: "trunk",
     72: "terrain", 80: "pole", 81: "traffic-sign", 99: "other-object",
+    16: "on-rails",
     251: "moving", 252: "moving-car", 253: "moving-bicyclist", 254: "moving-person", 255: "moving-motorcyclist",
     256: "moving-on-rails", 257: "moving-bus", 258: "moving-truck", 259: "moving-other-vehicle",
 }
@@ -48,6 +51,22 @@ def to_moving_classes(raw_labels: np.ndarray) -> np.ndarray:
     out[(sem >= 251) & (sem <= 259)] = MOVING
     out[(sem == 0) | (sem == 1)] = IGNORE
     return out
+
+
+def check_prediction_ids(raw_labels: np.ndarray, where: str) -> None:
+    """Raise a DatasetError when predictions are not in SemanticKITTI ids (e.g. binary 0/1 or class indices).
+
+    The benchmark would silently score such a file as all static (0 and 1 are 'unlabeled' and 'outlier').
+    """
+    present = np.unique(semantic_ids(raw_labels))
+    unknown = [int(i) for i in present if int(i) not in SEMANTIC_NAMES]
+    if unknown:
+        shown = ", ".join(str(i) for i in unknown[:5]) + (" ..." if len(unknown) > 5 else "")
+        raise DatasetError(f"{where}: ids {shown} are no SemanticKITTI ids (write 9 static / 251 moving, or any "
+                         "of 251-259 for moving)")
+    if len(present) and set(present.tolist()) <= {0, 1} and 1 in present:
+        raise DatasetError(f"{where}: only ids 0 and 1, which SemanticKITTI reads as 'unlabeled' and 'outlier': "
+                         "binary predictions? write 9 static / 251 moving")
 
 
 def to_submission(moving: np.ndarray) -> np.ndarray:

@@ -61,6 +61,9 @@ def read_label(path: str | Path, expected_points: int | None = None) -> np.ndarr
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"label file not found: {path}")
+    size = path.stat().st_size
+    if size % 4:
+        raise DatasetError(f"{path}: size {size} bytes is not a multiple of 4 (uint32 labels): a damaged file")
     labels = np.fromfile(path, dtype=np.uint32)
     if expected_points is not None and len(labels) != expected_points:
         raise DatasetError(f"{path}: {len(labels)} labels for {expected_points} points")

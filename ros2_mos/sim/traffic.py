@@ -9,8 +9,11 @@ collision circles would overlap anyone accepted before at any scan time, or when
 they never come within sensor range.
 
 An agent is *moving* at scan k when its pose changed since scan k-1 (more than
-:data:`EPS_MOVE` metres or :data:`EPS_YAW` radians): that is the ground truth the
-labels carry, so a car waiting at a light is static while it waits.
+:data:`EPS_MOVE` metres or :data:`EPS_YAW` radians): the ``instant`` convention, in
+which a car waiting at a light is static while it waits.  Under SemanticKITTI's
+convention (:mod:`ros2_mos.io.conventions`) an agent that moves at any scan while it
+is within the sensor's range is moving in every scan of the drive
+(:meth:`Traffic.observed_movers`, :func:`relabel_movers`).
 """
 
 from __future__ import annotations
@@ -123,6 +126,31 @@ class Traffic:
             if (a.x[i] - self.ego_x[i]) ** 2 + (a.y[i] - self.ego_y[i]) ** 2 < reach**2
         ]
         return TriangleSoup.concat(parts)
+
+    def observed_movers(self, reach: float) -> dict[int, int]:
+        """{instance: moving id} of the agents that move at some scan while within ``reach`` of the sensor.
+
+        SemanticKITTI's convention labels these moving in every scan in which they are seen, also while they wait.
+        """
+        ego_x, ego_y = self.ego_x[1:], self.ego_y[1:]
+        movers = {}
+        for a in self.agents:
+            in_range = (a.x[1:] - ego_x) ** 2 + (a.y[1:] - ego_y) ** 2 < reach**2
+            if (a.moving & in_range).any():
+                movers[a.inst] = a.kind.moving_id
+        return movers
+
+
+def relabel_movers(labels: np.ndarray, movers: dict[int, int]) -> np.ndarray:
+    """SemanticKITTI uint32 labels with every point of an instance in ``movers`` given that instance's moving id."""
+    labels = np.asarray(labels, np.uint32)
+    if not movers:
+        return labels.copy()
+    inst = labels >> np.uint32(16)
+    lookup = np.zeros(max(movers) + 1, np.uint32)
+    lookup[list(movers)] = list(movers.values())
+    new_sem = lookup[np.minimum(inst, len(lookup) - 1)] * (inst < len(lookup))
+    return np.where(new_sem > 0, (inst << np.uint32(16)) | new_sem, labels).astype(np.uint32)
 
 
 class _TrafficBuilder:

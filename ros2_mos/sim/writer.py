@@ -2,7 +2,9 @@
 
 ``OUT/sequences/XX/{velodyne,labels}/NNNNNN.{bin,label}``, ``poses.txt`` (camera
 poses through KITTI's ``Tr``, as the real dataset), ``calib.txt`` and
-``times.txt``, all through :mod:`ros2_mos.io.semantic_kitti`, so that the
+``times.txt``; ``labels/`` carries the chosen label convention and ``labels_<other>/``
+the other one, ``label_convention.txt`` says which is which
+(:mod:`ros2_mos.io.conventions`), all through :mod:`ros2_mos.io.semantic_kitti`, so that the
 project's own reader (and any SemanticKITTI tool) reads them back unchanged.
 """
 
@@ -16,6 +18,7 @@ import numpy as np
 
 from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.conventions import DEFAULT_CONVENTION, INSTANT, SEMANTICKITTI, other_convention, write_convention_file
 from ros2_mos.io.semantic_kitti import (
     SemanticKittiSequence,
     write_calib,
@@ -26,6 +29,7 @@ from ros2_mos.io.semantic_kitti import (
 )
 from ros2_mos.sim.presets import SimPreset
 from ros2_mos.sim.stats import SequenceStats
+from ros2_mos.sim.traffic import relabel_movers
 from ros2_mos.sim.world import SequenceSimulator
 
 #: Bag stamps start here (2023-11-14T22:13:20Z): a plausible wall-clock time rather than 0.
@@ -45,17 +49,23 @@ def simulate_sequence(
     seed: int = 0,
     sensor: str | SensorConfig = "hdl64",
     progress: Callable[[int], None] | None = None,
+    convention: str = DEFAULT_CONVENTION,
 ) -> SequenceStats:
     """Simulate one sequence and write it under ``out_dir/sequences/name``; returns its statistics.
 
+    ``labels/`` holds ``convention``'s labels, ``labels_<other>/`` the other convention's.
     ``progress`` is called with 1 after each written scan (e.g. ``tqdm.update``).
-    Deterministic for a given (seed, name, preset, sensor, n_scans).
+    Deterministic for a given (seed, name, preset, sensor, n_scans); the statistics count the instant convention.
     """
     start = time.perf_counter()
+    other = other_convention(convention)
     sim = SequenceSimulator(n_scans, preset, seed, sensor, name)
     root = sequence_dir(out_dir, name)
-    (root / "velodyne").mkdir(parents=True, exist_ok=True)
-    (root / "labels").mkdir(parents=True, exist_ok=True)
+    folders = {convention: root / "labels", other: root / f"labels_{other}"}
+    for folder in (root / "velodyne", *folders.values()):
+        folder.mkdir(parents=True, exist_ok=True)
+    write_convention_file(root, convention)
+    movers = sim.traffic.observed_movers(sim.lidar.max_range)
     stats = SequenceStats(name)
     agents = {a.inst: a for a in sim.traffic.agents}
     parked = set(sim.static.parked_ids.tolist())
@@ -67,7 +77,8 @@ def simulate_sequence(
         if not np.isfinite(item.scan.points).all():  # never expected; a NaN must not reach a file
             raise DatasetError(f"sequence {name} scan {k}: non-finite point coordinates")
         write_scan(root / "velodyne" / f"{k:06d}.bin", item.scan.points, item.scan.remission)
-        write_label(root / "labels" / f"{k:06d}.label", item.scan.labels)
+        write_label(folders[INSTANT] / f"{k:06d}.label", item.scan.labels)
+        write_label(folders[SEMANTICKITTI] / f"{k:06d}.label", relabel_movers(item.scan.labels, movers))
         poses.append(item.pose)
         times.append(item.time)
         ego_speed = float(np.hypot(ego_x[k + 1] - ego_x[k], ego_y[k + 1] - ego_y[k]) / period)
