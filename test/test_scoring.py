@@ -81,7 +81,9 @@ def test_calibration_curve_agrees_with_the_pipelines_labels(labelled_sequence, t
 
 def test_suite_row_scores_the_model_and_both_baselines_on_the_same_scans(labelled_sequence, tiny_model_path):
     pipe = MosPipeline(MosConfig(model=str(tiny_model_path)))
-    row = score_sequence(pipe, labelled_sequence, "street", warmup=2)
+    rows = score_sequence(pipe, labelled_sequence, "street", warmup=2)
+    assert list(rows) == ["semantickitti"]  # labels/ without label_convention.txt: SemanticKITTI's, as real data
+    row = rows["semantickitti"]
     assert row.scans == 4
     n_points = sum(len(labelled_sequence[i].points) for i in range(2, 6))
     for score in (row.model, row.residual, row.region_growing):
@@ -92,6 +94,29 @@ def test_suite_row_scores_the_model_and_both_baselines_on_the_same_scans(labelle
     assert "| street | 4 |" in table and "| total | 0 | **–** |" in table
 
 
+def test_a_suite_row_per_label_convention_scores_the_same_labels_against_each(tmp_path, tiny_model_path):
+    """A sequence with labels/ (instant, by label_convention.txt) and labels_semantickitti/: one row each; where the
+    instant labels have nothing moving, that row has no true positive and no miss, and both rows count the same
+    points labelled moving."""
+    import shutil
+
+    from ros2_mos.io.conventions import write_convention_file
+    from ros2_mos.io.semantic_kitti import read_label, write_label
+
+    seq_dir = write_sequence(tmp_path, "00", 6, seed=2)
+    shutil.copytree(seq_dir / "labels", seq_dir / "labels_semantickitti")
+    for f in (seq_dir / "labels").glob("*.label"):
+        write_label(f, np.full(len(read_label(f)), 40, np.uint32))
+    write_convention_file(seq_dir, "instant")
+    pipe = MosPipeline(MosConfig(model=str(tiny_model_path)))
+    rows = score_sequence(pipe, SemanticKittiSequence(seq_dir), "street", warmup=2)
+    assert list(rows) == ["instant", "semantickitti"]
+    instant, sk = rows["instant"].model, rows["semantickitti"].model
+    assert instant.tp == 0 and instant.fn == 0 and sk.tp > 0
+    assert instant.tp + instant.fp == sk.tp + sk.fp > 0
+    assert rows["instant"].region_growing.tp == 0 and rows["semantickitti"].region_growing.tp > 0
+
+
 def test_a_suite_row_s_breakdown_accounts_for_every_scored_point(labelled_sequence, tiny_model_path):
     """The breakdown of the scored scans: movers' found and missed points are the row's TP and FN, the false
     positives by class and by range both add up to its FP."""
@@ -99,7 +124,7 @@ def test_a_suite_row_s_breakdown_accounts_for_every_scored_point(labelled_sequen
 
     pipe = MosPipeline(MosConfig(model=str(tiny_model_path)))
     breakdown = ErrorBreakdown()
-    row = score_sequence(pipe, labelled_sequence, "street", warmup=2, breakdown=breakdown)
+    row = score_sequence(pipe, labelled_sequence, "street", warmup=2, breakdown=breakdown)["semantickitti"]
     movers = breakdown.movers()
     assert breakdown.scans == row.scans == 4 and movers
     assert {m.sequence for m in movers} == {labelled_sequence.name}

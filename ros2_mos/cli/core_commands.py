@@ -79,25 +79,46 @@ def evaluate(
                                      "the most missed points (range, speed), recall and false positives by range, "
                                      "false positives by class"),
     top: int = typer.Option(15, "--top", help="--by-instance: how many movers to list", min=1),
+    convention: Optional[str] = typer.Option(None, help="Score against this label convention only "
+                                             "(semantickitti or instant; default: every one the ground truth has)"),
 ) -> None:
-    """Moving IoU per sequence and over all, as the SemanticKITTI MOS benchmark defines it."""
-    from ros2_mos.scoring.evaluation import evaluate_predictions
+    """Moving IoU per sequence and over all, as the SemanticKITTI MOS benchmark defines it.
+
+    Simulated ground truth carries both label conventions (SemanticKITTI's: an object that moved while observed is
+    moving throughout; instant: moving while it moves); each is scored and named.
+    """
+    from ros2_mos.io.conventions import CONVENTIONS
+    from ros2_mos.scoring.evaluation import evaluate_predictions, gt_conventions
     from ros2_mos.scoring.metrics import MovingIoU
 
-    skipped: list[str] = []
-    breakdown = ErrorBreakdown() if by_instance else None
-    scores = evaluate_predictions(pred_dir, gt_dir, sequences, skipped=skipped, breakdown=breakdown)
-    total = MovingIoU()
-    typer.echo(f"{'sequence':>10} {'IoU':>7} {'TP':>10} {'FP':>10} {'FN':>10}")
-    for name, s in scores.items():
-        total = total + s
-        typer.echo(f"{name:>10} {_pct(s.iou):>7} {s.tp:>10} {s.fp:>10} {s.fn:>10}")
-    typer.echo(f"{'all':>10} {_pct(total.iou):>7} {total.tp:>10} {total.fp:>10} {total.fn:>10}")
-    if skipped:
-        typer.echo(f"note: 'all' covers {len(scores)} of {len(scores) + len(skipped)} ground-truth sequences; "
-                   f"no predictions for {', '.join(skipped)}")
-    if breakdown is not None:
-        print_breakdown(breakdown, top)
+    if convention is not None and convention not in CONVENTIONS:
+        fail(f"unknown --convention {convention!r}: use one of {', '.join(CONVENTIONS)}")
+    available = gt_conventions(gt_dir, sequences)
+    if convention is not None and convention not in available:
+        fail(f"{gt_dir}: no ground truth in the {convention} convention (has: {', '.join(available) or 'none'})")
+    chosen = [convention] if convention else (available or [None])
+    warnings: list[str] = []
+    for k, name in enumerate(chosen):
+        skipped: list[str] = []
+        breakdown = ErrorBreakdown() if by_instance else None
+        scores = evaluate_predictions(pred_dir, gt_dir, sequences, skipped=skipped, breakdown=breakdown,
+                                      convention=name, warnings=warnings if k == 0 else None)
+        if k == 0:
+            for line in warnings:
+                typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
+        if name is not None:
+            typer.echo(f"{'' if k == 0 else chr(10)}label convention: {name}")
+        total = MovingIoU()
+        typer.echo(f"{'sequence':>10} {'IoU':>7} {'TP':>10} {'FP':>10} {'FN':>10}")
+        for seq_name, s in scores.items():
+            total = total + s
+            typer.echo(f"{seq_name:>10} {_pct(s.iou):>7} {s.tp:>10} {s.fp:>10} {s.fn:>10}")
+        typer.echo(f"{'all':>10} {_pct(total.iou):>7} {total.tp:>10} {total.fp:>10} {total.fn:>10}")
+        if skipped:
+            typer.echo(f"note: 'all' covers {len(scores)} of {len(scores) + len(skipped)} ground-truth sequences; "
+                       f"no predictions for {', '.join(skipped)}")
+        if breakdown is not None:
+            print_breakdown(breakdown, top)
 
 
 def print_breakdown(breakdown: ErrorBreakdown, top: int) -> None:

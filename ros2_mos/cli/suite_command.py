@@ -50,14 +50,15 @@ def suite(
                f"threshold {pipeline.threshold:.2f}, sensor {pipeline.sensor.name}")
     breakdown = ErrorBreakdown() if by_instance else None
     with tqdm(desc="suite", unit="scan", leave=False) as bar:
-        rows = run_suite(pipeline, data, real, scans, seeds, log=typer.echo, progress=bar.update,
+        tables = run_suite(pipeline, data, real, scans, seeds, log=typer.echo, progress=bar.update,
                          sensor=spec.name, breakdown=breakdown)
     pipeline.close()
     title = (f"Evaluation suite, {date.today().isoformat()}: model `{pipeline.model.path.name}` "
              f"({pipeline.setup.label}, threshold {pipeline.threshold:.2f}), sensor {pipeline.sensor.name}, "
              f"KISS-ICP poses, {scans} scans per "
              "simulated sequence (seeds " + ", ".join(f"{k} {'/'.join(map(str, v))}" for k, v in seeds.items()) + ")\n")
-    table = format_table(rows, title)
+    table = "\n\n".join(format_table(rows, f"{title}\nLabel convention: **{convention}**\n")
+                         for convention, rows in tables.items())
     typer.echo(table)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,8 @@ import numpy as np
 
 from ros2_mos.core.errors import DatasetError
 from ros2_mos.core.pipeline import MosPipeline, MosResult
-from ros2_mos.io.labels import SUBMISSION_MOVING_ID, semantic_ids, to_moving_classes, to_submission
+from ros2_mos.io.conventions import label_dirs
+from ros2_mos.io.labels import MOVING, check_prediction_ids, to_moving_classes, to_submission
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label, read_scan, sequence_dirs, write_label
 from ros2_mos.scoring.breakdown import ErrorBreakdown
 from ros2_mos.scoring.metrics import MovingIoU
@@ -50,6 +51,15 @@ def write_prediction(out_root: str | Path, sequence: SemanticKittiSequence, inde
     write_label(path, to_submission(moving))
 
 
+def gt_conventions(gt_root: str | Path, sequences: list[str] | None = None) -> list[str]:
+    """The label conventions every ground-truth sequence has (main one first; see :mod:`ros2_mos.io.conventions`)."""
+    found: list[str] | None = None
+    for seq_dir in sequence_dirs(gt_root, sequences):
+        names = list(label_dirs(seq_dir))
+        found = names if found is None else [n for n in found if n in names]
+    return found or []
+
+
 def evaluate_predictions(
     pred_root: str | Path,
     gt_root: str | Path,
@@ -57,13 +67,18 @@ def evaluate_predictions(
     progress: Callable[[Iterator], Iterator] = lambda it: it,
     skipped: list[str] | None = None,
     breakdown: ErrorBreakdown | None = None,
+    convention: str | None = None,
+    warnings: list[str] | None = None,
 ) -> dict[str, MovingIoU]:
     """Moving IoU per sequence for a submission folder against SemanticKITTI ground truth.
 
+    Predictions are read as the benchmark reads them: every id 251-259 is moving, 0 and 1 are no prediction;
+    a file of non-SemanticKITTI ids (binary 0/1, class indices) or a damaged file is a DatasetError.
     Without ``sequences`` every ground-truth sequence that has predictions is scored;
     the names of those without predictions are appended to ``skipped`` (so that a
-    caller can say the total covers only part of the data). With ``breakdown`` every scored scan is also added to
-    it (this reads the points, not only their count).
+    caller can say the total covers only part of the data). ``convention`` picks the ground-truth labels of that
+    convention (default: the sequence's ``labels/``). Prediction files without a scan are named in ``warnings``.
+    With ``breakdown`` every scored scan is also added to it (this reads the points, not only their count).
     """
     gt_dirs = {p.name: p for p in sequence_dirs(gt_root, sequences)}
     scores: dict[str, MovingIoU] = {}
@@ -76,15 +91,31 @@ def evaluate_predictions(
                 continue
             raise DatasetError(f"no predictions for sequence {name}: {pred_dir} is missing")
         gt_seq = SemanticKittiSequence(gt_dir)
-        if not gt_seq.has_labels:
+        folders = label_dirs(gt_dir)
+        if convention is None:
+            label_folder = gt_dir / "labels"
+        elif convention in folders:
+            label_folder = folders[convention]
+        else:
+            raise DatasetError(f"{gt_dir}: no labels in the {convention} convention (has: "
+                               f"{', '.join(folders) or 'none'})")
+        if not (label_folder.is_dir() and any(label_folder.glob("*.label"))):
             raise DatasetError(f"{gt_dir}: no labels/ to evaluate against")
+        if warnings is not None:
+            stems = {f.stem for f in gt_seq.scan_files}
+            extra = sorted(f.name for f in pred_dir.glob("*.label") if f.stem not in stems)
+            if extra:
+                warnings.append(f"sequence {name}: {len(extra)} prediction file(s) without a scan, ignored "
+                                f"({', '.join(extra[:3])}{' ...' if len(extra) > 3 else ''})")
         score = MovingIoU()
         for i in progress(range(len(gt_seq))):
             n_points = gt_seq.scan_files[i].stat().st_size // 16
-            gt = read_label(gt_seq.label_path(i), n_points)  # a short ground-truth file is named as such
-            pred_file = pred_dir / (gt_seq.scan_files[i].stem + ".label")
+            stem = gt_seq.scan_files[i].stem
+            gt = read_label(label_folder / (stem + ".label"), n_points)  # a short ground-truth file is named
+            pred_file = pred_dir / (stem + ".label")
             pred = read_label(pred_file, n_points)
-            predicted_moving = semantic_ids(pred) == SUBMISSION_MOVING_ID
+            check_prediction_ids(pred, str(pred_file))
+            predicted_moving = to_moving_classes(pred) == MOVING
             score.update(predicted_moving, to_moving_classes(gt))
             if breakdown is not None:  # the scan's points; its labels are read above
                 points = read_scan(gt_seq.scan_files[i])[:, :3]

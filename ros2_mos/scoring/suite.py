@@ -14,6 +14,9 @@ Rows
   :data:`REAL_WARMUP` warm-up scans (no history before them).  Skipped, with a line
   saying so, where they are absent.
 
+One table per label convention (:mod:`ros2_mos.io.conventions`): the simulated rows under SemanticKITTI's and
+under the instant one, the real rows under SemanticKITTI's (the reference's).
+
 Columns: moving IoU, precision, recall, false-positive points per scan, the largest
 share of a scan's points labelled moving, and the **Residual** and **Residual + RG**
 baselines (:mod:`ros2_mos.scoring.baselines`) run on the very same scans with the same
@@ -34,8 +37,9 @@ from ros2_mos.core.pipeline import MosPipeline
 from ros2_mos.core.postprocess import backproject
 from ros2_mos.core.projection import finite_mask, project
 from ros2_mos.core.residuals import residual_images
+from ros2_mos.io.conventions import CONVENTIONS, label_dirs
 from ros2_mos.io.labels import to_moving_classes
-from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label
 from ros2_mos.scoring.baselines import (
     RegionGrowingParams,
     region_growing,
@@ -87,14 +91,18 @@ def _recall(s: MovingIoU) -> float:
 
 def score_sequence(pipeline: MosPipeline, sequence: SemanticKittiSequence, name: str, warmup: int = 0,
                    rg_params: RegionGrowingParams = RegionGrowingParams(),
-                   progress: Callable[[], None] | None = None, breakdown: ErrorBreakdown | None = None) -> RowScore:
+                   progress: Callable[[], None] | None = None,
+                   breakdown: ErrorBreakdown | None = None) -> dict[str, RowScore]:
     """Run the pipeline (KISS-ICP poses) over a labelled sequence; score scans from ``warmup`` on.
 
-    With ``breakdown`` the model's labels of every scored scan are also added to it, under the sequence's name.
+    Returns one row per label convention the sequence has (:mod:`ros2_mos.io.conventions`), main one first: the
+    same labels of the model and the baselines scored against each. With ``breakdown`` the model's labels of every
+    scored scan are also added to it (against the main convention), under the sequence's name.
     """
     if not sequence.has_labels:
         raise DatasetError(f"{sequence.root}: no labels/ to score against")
-    row = RowScore(name)
+    folders = label_dirs(sequence.root)
+    rows = {convention: RowScore(name) for convention in folders}
     sensor, post = pipeline.sensor, pipeline.config.postprocess
     pipeline.reset()
     start = time.perf_counter()
@@ -105,25 +113,35 @@ def score_sequence(pipeline: MosPipeline, sequence: SemanticKittiSequence, name:
             progress()
         if frame.index < warmup:
             continue
-        gt = to_moving_classes(frame.labels)
-        row.scans += 1
-        row.model.update(result.labels, gt)
+        stem = sequence.scan_files[frame.index].stem
+        gts = {convention: to_moving_classes(frame.labels if folder.name == "labels"
+                                             else read_label(folder / f"{stem}.label", len(frame.points)))
+               for convention, folder in folders.items()}
         if breakdown is not None:
             breakdown.update(sequence.name, frame.points, frame.labels, result.labels, frame.pose, frame.timestamp)
-        row.max_moving_fraction = max(row.max_moving_fraction, float(result.labels[result.valid].mean()))
         # The baselines on the same scan, poses and back-projection.
         valid = finite_mask(frame.points)
         xyz = np.ascontiguousarray(frame.points[valid], np.float32)
         image = project(xyz, np.zeros(len(xyz), np.float32), sensor)
         signed = residual_images(image.range, result.pose, past, 2, sensor, pipeline.config.residuals, signed=True)
         z_image = np.where(image.mask, image.xyz[..., 2], 0.0)
-        for score, mask in ((row.residual, residual_threshold(signed[0], RESIDUAL_TAU)),
-                            (row.region_growing, region_growing(image.range, z_image, signed, rg_params))):
+        baselines = []
+        for mask in (residual_threshold(signed[0], RESIDUAL_TAU), region_growing(image.range, z_image, signed,
+                                                                                   rg_params)):
             moving = np.zeros(len(frame.points), bool)
             moving[valid] = backproject(mask.astype(np.float32), image.range, image.pixels, post, 0.5) >= 0.5
-            score.update(moving, gt)
-    row.seconds = time.perf_counter() - start
-    return row
+            baselines.append(moving)
+        for convention, row in rows.items():
+            gt = gts[convention]
+            row.scans += 1
+            row.model.update(result.labels, gt)
+            row.max_moving_fraction = max(row.max_moving_fraction, float(result.labels[result.valid].mean()))
+            row.residual.update(baselines[0], gt)
+            row.region_growing.update(baselines[1], gt)
+    seconds = time.perf_counter() - start
+    for row in rows.values():
+        row.seconds = seconds
+    return rows
 
 
 def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...]] = SIM_SEEDS,
@@ -137,7 +155,8 @@ def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...
         for seed in preset_seeds:
             name = f"{preset}-{seed}-{scans}"
             folder = root / "sequences" / name
-            if not (folder / "poses.txt").is_file():
+            # A folder of an older version (without both label conventions) is simulated anew.
+            if not (folder / "poses.txt").is_file() or len(label_dirs(folder)) < 2:
                 log(f"simulating {name} ({scans} scans) into {folder}")
                 simulate_sequence(root, name, scans, sim_preset(preset), seed, sensor)
             out.append((preset, name, folder))
@@ -155,35 +174,39 @@ def real_sequences(real_root: Path | None) -> list[Path]:
 def run_suite(pipeline: MosPipeline, sim_root: Path, real_root: Path | None, scans: int = 100,
               seeds: dict[str, tuple[int, ...]] = SIM_SEEDS, log: Callable[[str], None] = lambda s: None,
               progress: Callable[[], None] | None = None, sensor: str = "hdl64",
-              breakdown: ErrorBreakdown | None = None) -> list[RowScore]:
-    """Every row of the suite: per sequence, per preset, the real scans; absent real scans are skipped.
+              breakdown: ErrorBreakdown | None = None) -> dict[str, list[RowScore]]:
+    """Every row of the suite, per label convention: per sequence, per preset, the real scans (SemanticKITTI's
+    convention only); absent real scans are skipped.
 
     With ``breakdown`` every scored scan of the model is also added to it (see :func:`score_sequence`).
     """
-    rows: list[RowScore] = []
+    tables: dict[str, list[RowScore]] = {c: [] for c in CONVENTIONS}
+
+    def add_group(title: str, scored: list[dict[str, RowScore]]) -> None:
+        for convention, rows in tables.items():
+            group = [s[convention] for s in scored if convention in s]
+            if not group:
+                continue
+            total = RowScore(title)
+            for row in group:
+                total.add(row)
+            rows.extend([*group, total])
+
     for preset, group in _grouped(ensure_sim_sequences(sim_root, scans, seeds, log, sensor)):
-        total = RowScore(f"sim {preset}")
-        for name, folder in group:
-            row = score_sequence(pipeline, SemanticKittiSequence(folder), f"  {name}", progress=progress,
-                                 breakdown=breakdown)
-            rows.append(row)
-            total.add(row)
-        rows.append(total)
+        add_group(f"sim {preset}", [score_sequence(pipeline, SemanticKittiSequence(folder), f"  {name}",
+                                                   progress=progress, breakdown=breakdown)
+                                    for name, folder in group])
     real = real_sequences(real_root)
     if real:
-        total = RowScore("real KITTI 08 (agreement)")
-        for folder in real:
-            row = score_sequence(pipeline, SemanticKittiSequence(folder), f"  real {folder.name}", REAL_WARMUP,
-                                 progress=progress, breakdown=breakdown)
-            rows.append(row)
-            total.add(row)
-        rows.append(total)
+        add_group("real KITTI 08 (agreement)",
+                  [score_sequence(pipeline, SemanticKittiSequence(folder), f"  real {folder.name}", REAL_WARMUP,
+                                  progress=progress, breakdown=breakdown) for folder in real])
     elif real_root is None:
         log("real scans skipped: the development scans are HDL-64E scans")
     else:
         log(f"real scans skipped: no {real_root}/sequences/*/{{velodyne,labels}} "
             "(unpack them with ../shared/real/unpack.sh data/real-kitti08-dev)")
-    return rows
+    return {c: rows for c, rows in tables.items() if rows}
 
 
 def _grouped(items: Iterable[tuple[str, str, Path]]) -> list[tuple[str, list[tuple[str, Path]]]]:

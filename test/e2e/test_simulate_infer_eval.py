@@ -117,7 +117,8 @@ def test_eval_by_instance_lists_each_mover_with_its_recall_range_and_speed(datas
             gt = to_moving_classes(seq[i].labels)
             out = tmp_path / name / "sequences" / "00" / "predictions" / f"{i:06d}.label"
             write_label(out, to_submission(predict(gt)))
-    result = runner.invoke(app, ["eval", str(tmp_path / "perfect"), str(dataset), "--by-instance", "--top", "100"])
+    result = runner.invoke(app, ["eval", str(tmp_path / "perfect"), str(dataset), "--by-instance", "--top", "100",
+                                 "--convention", "semantickitti"])
     assert result.exit_code == 0, result.output
     rows = [line.split() for line in result.output.splitlines() if line.startswith("00 ")]
     assert rows and all(r[6] == "100.0" for r in rows), result.output
@@ -125,10 +126,84 @@ def test_eval_by_instance_lists_each_mover_with_its_recall_range_and_speed(datas
     seen_long = [r for r in rows if int(r[3]) >= 10]  # seen over a second: a speed from the poses
     assert seen_long and all(0.3 < float(r[8]) < 30 for r in seen_long), result.output
     assert "false positives by class" in result.output and "none" in result.output
-    result = runner.invoke(app, ["eval", str(tmp_path / "static"), str(dataset), "--by-instance", "--top", "2"])
+    result = runner.invoke(app, ["eval", str(tmp_path / "static"), str(dataset), "--by-instance", "--top", "2",
+                                 "--convention", "semantickitti"])
     assert result.exit_code == 0, result.output
     rows = [line.split() for line in result.output.splitlines() if line.startswith("00 ")]
     assert len(rows) == 2 and all(r[6] == "0.0" for r in rows)
     assert int(rows[0][5]) >= int(rows[1][5])  # most missed first
     result = runner.invoke(app, ["eval", str(tmp_path / "static"), str(dataset), "--by-instance", "--top", "0"])
     assert result.exit_code != 0
+
+
+def _write_predictions(root: Path, seq: SemanticKittiSequence, labels_of) -> Path:
+    from ros2_mos.io.semantic_kitti import write_label
+
+    for i in range(len(seq)):
+        write_label(root / "sequences" / seq.name / "predictions" / f"{i:06d}.label", labels_of(i))
+    return root
+
+
+def _iou_lines(output: str) -> dict[str, float]:
+    """{convention: the 'all' IoU} from eval's output."""
+    found, convention = {}, None
+    for line in output.splitlines():
+        if line.startswith("label convention:"):
+            convention = line.split(":")[1].strip()
+        elif line.split()[:1] == ["all"]:
+            found[convention] = float(line.split()[1])
+    return found
+
+
+def test_eval_scores_both_label_conventions_of_simulated_ground_truth(tmp_path):
+    """Predictions equal to one convention's labels score 100 under it and less under the other (this jam has
+    movers that stand in some scans); --convention picks one."""
+    from ros2_mos.io.labels import to_moving_classes, to_submission
+
+    dataset = tmp_path / "jam"
+    result = runner.invoke(app, ["simulate", str(dataset), "--sequences", "00", "--scans", "25",
+                                 "--preset", "traffic_jam", "--sensor", "vlp16", "--seed", "3"])
+    assert result.exit_code == 0, result.output
+    seq = SemanticKittiSequence(dataset / "sequences" / "00")
+    instant_dir = dataset / "sequences" / "00" / "labels_instant"
+    pred = _write_predictions(tmp_path / "p", seq, lambda i: to_submission(
+        to_moving_classes(read_label(instant_dir / f"{i:06d}.label")) == 1))
+    result = runner.invoke(app, ["eval", str(pred), str(dataset)])
+    assert result.exit_code == 0, result.output
+    scores = _iou_lines(result.output)
+    assert list(scores) == ["semantickitti", "instant"], result.output
+    assert scores["instant"] == 100.0 and scores["semantickitti"] < 100.0
+    result = runner.invoke(app, ["eval", str(pred), str(dataset), "--convention", "instant"])
+    assert result.exit_code == 0 and list(_iou_lines(result.output)) == ["instant"]
+    result = runner.invoke(app, ["eval", str(pred), str(dataset), "--convention", "moving"])
+    assert result.exit_code != 0 and "unknown --convention" in result.output
+
+
+def test_eval_reads_predictions_as_the_benchmark_does(dataset, tmp_path):
+    """Every id 251-259 is moving (252 scores as 251); binary 0/1 and unknown ids are a clear error; a damaged file
+    is an error; a prediction file without a scan is a warning."""
+    from ros2_mos.io.labels import to_moving_classes
+
+    seq = SemanticKittiSequence(dataset / "sequences" / "00")
+
+    def moving(i: int) -> np.ndarray:
+        return to_moving_classes(seq[i].labels) == 1
+
+    ious = {}
+    for name, ids in (("251", (9, 251)), ("252", (40, 252)), ("binary", (0, 1)), ("classes", (3, 7))):
+        pred = _write_predictions(tmp_path / name, seq, lambda i: np.where(moving(i), ids[1], ids[0]).astype(np.uint32))
+        result = runner.invoke(app, ["eval", str(pred), str(dataset), "--convention", "semantickitti"])
+        if name in ("251", "252"):
+            assert result.exit_code == 0, result.output
+            ious[name] = _iou_lines(result.output)["semantickitti"]
+        else:
+            assert result.exit_code != 0 and "SemanticKITTI" in str(result.exception), name
+    assert ious["251"] == ious["252"] == 100.0
+    pred = tmp_path / "251" / "sequences" / "00" / "predictions"
+    (pred / "000999.label").write_bytes(b"")
+    result = runner.invoke(app, ["eval", str(tmp_path / "251"), str(dataset), "--convention", "semantickitti"])
+    assert result.exit_code == 0 and "1 prediction file(s) without a scan" in result.output
+    damaged = pred / "000004.label"
+    damaged.write_bytes(damaged.read_bytes() + b"\x00\x00")
+    result = runner.invoke(app, ["eval", str(tmp_path / "251"), str(dataset), "--convention", "semantickitti"])
+    assert result.exit_code != 0 and "not a multiple of 4" in str(result.exception)
