@@ -317,6 +317,10 @@ class OdometryConfig:
     # The limit grows with the time since the last processed scan, so dropped scans don't trip it.
     max_translation_jump: float = knob(5.0, "a larger motion per 0.1 s between two processed scans (m) is an "
                                             "odometry failure: the scan buffer is reset", min=0.0, above=True)
+    # A second sensor's scans on the same topic (issue 32.1) turn the pose as no vehicle turns.
+    max_rotation_jump: float = knob(30.0, "a larger turn per 0.1 s between two processed scans (deg) is an odometry "
+                                          "failure (or another sensor): the scan buffer is reset", min=0.0,
+                                    above=True, max=180.0)
     map_update: str = knob("all", "what enters KISS-ICP's map: every point, or only those labelled static",
                            choices=("all", "static"))
 

@@ -228,14 +228,15 @@ class MosPipeline:
 
     def reset(self) -> None:
         """Forget past scans and the odometry map (time went backwards, odometry failed, ...)."""
-        self._forget_past_scans()
+        self.forget_past_scans()
         self.odometry.reset()
         self._last_stamp = None
         self._last_pose = None
         self._sensor_mismatch = None
 
-    def _forget_past_scans(self) -> None:
-        """The scan buffer and the temporal belief: what a jump in the poses makes meaningless."""
+    def forget_past_scans(self) -> None:
+        """Forget the scan buffer and the temporal belief, keep the odometry: what a jump in the poses or a gap in
+        the stream makes meaningless, where the odometry's map still describes the place."""
         self.buffer.clear()
         self.belief.reset()
 
@@ -334,13 +335,18 @@ class MosPipeline:
         if not np.isfinite(pose).all():
             raise ScanError("the given pose is not finite")
         if self._last_pose is not None and self._last_stamp is not None:
-            jump = float(np.linalg.norm(relative_pose(self._last_pose, pose)[:3, 3]))
+            motion = relative_pose(self._last_pose, pose)
+            jump = float(np.linalg.norm(motion[:3, 3]))
+            turn = float(np.degrees(np.arccos(np.clip((np.trace(motion[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
             # Per 0.1 s (one 10 Hz scan): scans dropped upstream must not look like a jump.
-            limit = self.config.odometry.max_translation_jump * max(1.0, (timestamp - self._last_stamp) / 0.1)
-            if jump > limit:
-                notes.warnings.append(f"pose jumped {jump:.1f} m since the last scan (limit {limit:.1f} m): "
+            periods = max(1.0, (timestamp - self._last_stamp) / 0.1)
+            limit = self.config.odometry.max_translation_jump * periods
+            turn_limit = self.config.odometry.max_rotation_jump * periods
+            if jump > limit or turn > turn_limit:
+                what = (f"jumped {jump:.1f} m" if jump > limit else f"turned {turn:.0f} deg") + " since the last scan"
+                notes.warnings.append(f"pose {what} (limits {limit:.1f} m, {min(turn_limit, 180.0):.0f} deg): "
                                       "odometry suspect, buffer reset")
-                self._forget_past_scans()
+                self.forget_past_scans()
                 notes.reset = True
         return pose
 

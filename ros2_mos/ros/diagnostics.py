@@ -18,20 +18,24 @@ ERROR_STREAK = 3
 STALE_AFTER_S = 2.0
 
 
-def node_status(s: Snapshot, last: ScanOutput | None) -> tuple[int, str, dict[str, Any]]:
-    """(level, message, key values): ERROR for a foreign sensor or a streak of failures, WARN for stale input or
-    degraded labels, OK otherwise; the values carry every counter, rate and stage timing."""
+def node_status(s: Snapshot, last: ScanOutput | None, stream_problem: str = "") -> tuple[int, str, dict[str, Any]]:
+    """(level, message, key values): ERROR for a foreign sensor, sensors interleaved on the input topic
+    (``stream_problem``: :attr:`~ros2_mos.ros.processor.ScanProcessor.stream_problem`) or a streak of failures,
+    WARN for stale input or degraded labels (with the reason: a reset, another frame_id, ...), OK otherwise; the
+    values carry every counter, rate and stage timing."""
     level, message = m.OK, "ok"
     stale = s.seconds_since_last_scan is None or s.seconds_since_last_scan > STALE_AFTER_S
     if last is not None and last.result.sensor_mismatch:
         level, message = m.ERROR, last.result.sensor_mismatch
+    elif stream_problem and not stale:
+        level, message = m.ERROR, stream_problem
     elif s.consecutive_errors >= ERROR_STREAK:
         level, message = m.ERROR, f"{s.consecutive_errors} scans failed in a row: {s.last_warning}"
     elif stale:
         level, message = m.WARN, "no input" + ("" if s.seconds_since_last_scan is None else
                                                f" for {s.seconds_since_last_scan:.1f} s")
     elif last is not None and last.result.degraded:
-        level, message = m.WARN, "labels degraded: " + ("; ".join(last.result.warnings) or
+        level, message = m.WARN, "labels degraded: " + ("; ".join(last.notes or last.result.warnings) or
                                                         f"{last.result.n_past_available} of "
                                                         f"{last.result.n_past_required} past scans available")
     values: dict[str, Any] = {
@@ -46,6 +50,6 @@ def node_status(s: Snapshot, last: ScanOutput | None) -> tuple[int, str, dict[st
         "last_warning": s.last_warning,
     }
     if last is not None:
-        values.update(points=len(last.valid_index), moving_points=last.n_moving,
+        values.update(frame_id=last.frame_id, points=len(last.valid_index), moving_points=last.n_moving,
                       residuals_complete=last.result.residuals_complete, degraded=last.result.degraded)
     return level, message, values

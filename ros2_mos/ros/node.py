@@ -140,6 +140,7 @@ class MosNode(Node):
         self._log_timer = self.create_timer(s.log_period, self._log_stats) if s.log_period > 0 else None
         self._last_output: ScanOutput | None = None
         self._sensor_mismatch = ""  # the last mismatch logged (ros2_mos.core.sensor_check)
+        self._stream_problem = ""  # the last stream problem logged (ScanProcessor.stream_problem)
         self._worker = threading.Thread(target=self._work, name="mos_worker", daemon=True)
         self._worker.start()
         p = pipeline
@@ -189,6 +190,18 @@ class MosNode(Node):
                     self.get_logger().error(f"reset failed too: {reset_exc}")
 
     def _handle(self, msg: Any, received: float) -> None:
+        try:
+            self._process(msg, received)
+        finally:
+            problem = self.processor.stream_problem
+            if problem != self._stream_problem:  # one line when it starts (or ends)
+                self._stream_problem = problem
+                if problem:
+                    self.get_logger().error(problem)
+                else:
+                    self.get_logger().info("one sensor on the input topic again")
+
+    def _process(self, msg: Any, received: float) -> None:
         log = self.get_logger()
         try:
             out = self.processor.process(msg, self._wanted())
@@ -241,7 +254,7 @@ class MosNode(Node):
         self._map_pub.publish(cloud)
 
     def _publish_diagnostics(self) -> None:
-        level, message, values = node_status(self.stats.snapshot(), self._last_output)
+        level, message, values = node_status(self.stats.snapshot(), self._last_output, self.processor.stream_problem)
         header = m.make_header(self.types, self.get_clock().now().nanoseconds, "")
         self._diag_pub.publish(m.diagnostics_msg(self.types, header, DIAGNOSTIC_NAME, self.get_name(), level,
                                                  message, values))

@@ -118,6 +118,14 @@ PARAMS: tuple[ParamSpec, ...] = (
     _param("reset_after_gap", 1.0,
            "a gap between scans longer than this (s), e.g. a silent driver, resets the scan buffer; 0 = never",
            min=0.0),
+    _param("stamp_tolerance", 0.05,
+           "a cloud stamped at most this much (s) before the last processed one (driver jitter) is skipped and the "
+           "history kept; time going back further (a replay restarted) resets the scan buffer and odometry",
+           min=0.0, max=10.0),
+    _param("frame_change", "reset",
+           "a cloud whose frame_id is not the stream's (another sensor on the topic): reset = start over with it "
+           "(scan buffer and odometry reset), skip = keep labelling the first sensor and skip the other's clouds",
+           choices=("reset", "skip")),
     _param("publish_incomplete", True,
            "publish labels while fewer than N past scans exist (sequence start, after a reset); "
            "they are flagged degraded in the diagnostics either way"),
@@ -163,6 +171,8 @@ class NodeSettings:
     publish_tf: bool
     diagnostics_period: float
     log_period: float
+    stamp_tolerance: float
+    frame_change: str
     static_map: "StaticMapSettings | None" = None  # None: not published
 
 
@@ -260,6 +270,10 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
             raise ConfigError(f"parameter {frame_param!r}: {v[frame_param]!r} is not a valid frame id")
     if not v["odom_frame"]:
         raise ConfigError("parameter 'odom_frame' must not be empty")
+    if v["sensor_frame"] == v["odom_frame"]:
+        raise ConfigError(f"parameters 'sensor_frame' and 'odom_frame' are both {v['odom_frame']!r}: the odometry "
+                          "would be a transform from a frame to itself; give the sensor's own frame (or leave "
+                          "sensor_frame empty for the clouds' frame_id)")
     return NodeSettings(
         input_topic=_check_topic("input_topic", v["input_topic"]),
         reliable=v["qos.reliability"] == "reliable",
@@ -275,6 +289,8 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         diagnostics_period=v["diagnostics_period"],
         log_period=v["log_period"],
         static_map=static_map,
+        stamp_tolerance=v["stamp_tolerance"],
+        frame_change=v["frame_change"],
     )
 
 

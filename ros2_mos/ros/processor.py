@@ -3,8 +3,11 @@
 Everything between decoding the input and having the messages to publish lives
 here, so the live node and the offline bag processing cannot disagree. It also
 owns the input policy: which clouds are skipped (bad layout, too few finite
-points, a duplicate stamp, no plausible LiDAR scan) and when the scan buffer is reset (a gap in the
-stream; time going backwards and pose jumps are handled by the pipeline).
+points, a duplicate or slightly late stamp, no plausible LiDAR scan, another sensor's frame_id with
+``frame_change: skip``) and when the scan buffer is reset (a gap in the stream: the odometry is kept; another
+sensor's frame_id with ``frame_change: reset``: everything is reset; time going back further than
+``stamp_tolerance`` and pose jumps are handled by the pipeline). Two sensors interleaved on one topic are
+detected from their frame_ids (:attr:`ScanProcessor.stream_problem`).
 Skips raise :class:`~ros2_mos.core.errors.ScanError` with the reason; the caller
 logs it and carries on.
 """
@@ -61,6 +64,9 @@ class ScanOutput:
 
 #: Clouds with more points than this many per range-image pixel are refused (a 64 x 2048 sensor: 524k).
 MAX_POINTS_PER_PIXEL = 4
+#: Two frame_id changes within this much input time (s) are two sensors interleaved on one topic, not one sensor
+#: replaced by another; the report stays until this long passes without a change.
+INTERLEAVE_WINDOW_S = 2.0
 
 
 class ScanProcessor:
@@ -71,11 +77,18 @@ class ScanProcessor:
         self.settings = settings
         self.types = types
         self._last_stamp: int | None = None
+        #: The frame_id of the sensor being labelled (None: not seen yet, or reset).
+        self.frame_id: str | None = None
+        self._frame_changes: list[int] = []  # input stamps (ns) of the recent frame_id changes
+        self._frames_seen: dict[str, int] = {}  # frame_id -> newest stamp (ns) seen, over every cloud received
+        #: Non-empty while two sensors seem to share the input topic (frame_ids alternating): one line to report.
+        self.stream_problem = ""
 
     def reset(self) -> None:
-        """Forget the past (also the pipeline's scan buffer and odometry)."""
+        """Forget the past (also the pipeline's scan buffer and odometry, and the stream's frame_id)."""
         self.pipeline.reset()
         self._last_stamp = None
+        self.frame_id = None
 
     def process(self, msg: Any, wanted: frozenset[str] | None = None) -> ScanOutput:
         """Label one cloud; ``wanted`` limits which messages are built (None = all).
@@ -98,14 +111,19 @@ class ScanProcessor:
             raise SkippedScan("too_few_points", f"cloud at {stamp * 1e-9:.3f} s has {len(points)} finite points "
                               f"of {view.size} (min_points {self.settings.min_points}): skipped")
         notes: list[str] = []
-        reset = False
-        if self._last_stamp is not None:
+        reset = self._check_frame(stamp, frame_id, notes)
+        if self._last_stamp is not None and not reset:
             if stamp == self._last_stamp:
                 raise SkippedScan("duplicate_stamp", f"cloud at {stamp * 1e-9:.3f} s repeats the last stamp: skipped")
             gap = (stamp - self._last_stamp) * 1e-9
+            if 0 < -gap <= self.settings.stamp_tolerance:  # driver jitter, a late message: no time travel
+                raise SkippedScan("late_stamp", f"cloud at {stamp * 1e-9:.3f} s is {-gap * 1e3:.1f} ms older than "
+                                  f"the last scan (within stamp_tolerance {self.settings.stamp_tolerance:g} s): "
+                                  "skipped, the history kept")
             if self.settings.reset_after_gap > 0 and gap > self.settings.reset_after_gap:
-                self.pipeline.reset()
-                notes.append(f"{gap:.2f} s since the last scan (> reset_after_gap): scan buffer reset")
+                # The odometry map still describes where the sensor is: only the past scans are too old to use.
+                self.pipeline.forget_past_scans()
+                notes.append(f"{gap:.2f} s since the last scan (> reset_after_gap): scan buffer reset, odometry kept")
                 reset = True
         try:
             result = self.pipeline.process(points, intensity, stamp * 1e-9)
@@ -125,6 +143,40 @@ class ScanProcessor:
         timings["total"] = (time.perf_counter() - t0) * 1e3
         return ScanOutput(stamp_ns=stamp, frame_id=frame_id, result=result, valid_index=kept, points=points,
                           messages=messages, timings=timings, notes=notes, reset=reset, labels_withheld=withhold)
+
+    def _check_frame(self, stamp: int, frame_id: str, notes: list[str]) -> bool:
+        """Follow the stream's frame_id: True when a change reset the pipeline; :class:`SkippedScan` for another
+        sensor's cloud with ``frame_change: skip``. Keeps :attr:`stream_problem` up to date."""
+        if frame_id == self.settings.odom_frame:
+            raise SkippedScan("odom_frame_cloud", f"cloud at {stamp * 1e-9:.3f} s has frame_id {frame_id!r}, the "
+                              "odom_frame: the node needs clouds in the sensor's own frame: skipped")
+        window = int(INTERLEAVE_WINDOW_S * 1e9)
+        self._frames_seen[frame_id] = max(stamp, self._frames_seen.get(frame_id, stamp))
+        self._frames_seen = {f: t for f, t in self._frames_seen.items() if abs(stamp - t) <= window}  # bounded
+        previous = self.frame_id
+        changed = previous is not None and frame_id != previous
+        if changed:
+            self._frame_changes.append(stamp)
+        self._frame_changes = [t for t in self._frame_changes if abs(stamp - t) <= window]
+        recent = sorted(self._frames_seen)
+        if len(self._frame_changes) >= 2 or (self.settings.frame_change == "skip" and len(recent) > 1):
+            self.stream_problem = (f"clouds of {len(recent)} sensors interleaved on one topic (frame_ids "
+                                   f"{', '.join(map(repr, recent))}): give each sensor its own topic and node"
+                                   + (f"; only {self.frame_id!r} is labelled" if self.settings.frame_change == "skip"
+                                      else " (with frame_change: skip the first one is labelled alone)"))
+        else:
+            self.stream_problem = ""
+        if not changed:
+            self.frame_id = frame_id
+            return False
+        if self.settings.frame_change == "skip":
+            raise SkippedScan("other_frame", f"cloud at {stamp * 1e-9:.3f} s has frame_id {frame_id!r}, not the "
+                              f"stream's {previous!r} (another sensor? frame_change: skip): skipped")
+        self.reset()
+        self.frame_id = frame_id
+        notes.append(f"frame_id changed from {previous!r} to {frame_id!r} (another sensor on the topic?): scan "
+                     "buffer and odometry reset")
+        return True
 
     def _build(self, wanted: frozenset[str] | None, stamp: int, frame_id: str, view: Any, kept: np.ndarray,
                moving: np.ndarray, result: MosResult, withhold: bool) -> dict[str, Any]:
