@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The benchmark as recorded in benchmarks/bench.md and the README (issue 8): the shipped model, FastMOS
+# The benchmark as recorded in benchmarks/bench.md and docs/evaluation.md (issue 8): the shipped model, FastMOS
 # N=1 and N=8 and SalsaNext N=8 with random weights (timing only), the LiDAR-MOS-style reference, and
 # mos_node under replay at 10 and 20 Hz. Extra options go to `ros2-mos bench` (e.g. --geometry torch).
 set -euo pipefail

@@ -2,7 +2,7 @@
 
 ``projection.py`` and ``residuals.py`` are written in numpy, ~80 whole-array operations per projection of
 a scan. ``_kernels.c`` does the same float32 arithmetic, in the same order, in one pass per point: the
-results are bit-identical (``test/test_kernels.py``) and several times faster (README, Speed). The
+results are bit-identical (``test/test_kernels.py``) and several times faster (benchmarks/experiments.md, Speed). The
 registration's normals, Gauss-Newton sums and loop (``registration.py``) are here too; they agree with their
 numpy code to 1e-9 (double-precision sums in another order, ``test/test_registration.py``). The range image's
 connected regions (``segments.py``: the same labels) and the kNN vote (``postprocess.py``: the same labels,

@@ -83,7 +83,7 @@ def knn_backproject(
     """
     if len(pixels.u) == 0:
         return np.empty(0, np.float32)
-    if kernels.enabled():  # the same vote compiled, eight points at a time (README, Speed)
+    if kernels.enabled():  # the same vote compiled, eight points at a time (benchmarks/experiments.md, Speed)
         return kernels.knn_vote(prob_image, range_image, pixels.u, pixels.v, pixels.range, config.window, config.k,
                                 _inverse_gaussian(config.window, config.sigma), config.cutoff, threshold)
     if threshold is None:

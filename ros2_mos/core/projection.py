@@ -70,7 +70,7 @@ def check_points(points: np.ndarray, what: str = "points") -> np.ndarray:
 
 # atan(t) ~ t * P(t^2) on [0, 1]: odd least-squares fit of degree 17, max error 1e-7 rad in float32
 # (np.arctan2 in float32 is off by up to 2.2e-7). numpy's arctan2 is scalar libm code, while the
-# ~30 multiply-adds below are SIMD ufuncs (faster: README, Speed), and it runs
+# ~30 multiply-adds below are SIMD ufuncs (faster: benchmarks/experiments.md, Speed), and it runs
 # once per scan and once per past scan.
 _ATAN_COEFFS = np.array(
     [0.9999998863901668, -0.333325970473658, 0.19985906928451264, -0.14161229789124125,

@@ -12,7 +12,7 @@ from ros2_mos.scoring.evaluation import predict_sequence
 from ros2_mos.scoring.metrics import MovingIoU
 
 SENSORS = sorted(s for s in shipped_models() if s != "hdl64")
-#: A smoke bound for 12 scans of a held-out drive (the suite's figures per sensor are in README, Sensors).
+#: A smoke bound for 12 scans of a held-out drive (the suite's figures per sensor are in docs/sensors.md).
 MIN_IOU = 0.3
 
 
