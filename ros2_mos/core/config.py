@@ -331,6 +331,23 @@ class OdometryConfig:
 
 
 @dataclass(frozen=True)
+class MoverMemoryConfig:
+    """A memory of movers (core/mover_memory.py): a segment standing where movers were labelled moving a moment ago
+    stays moving (a car waiting at a light, in a jam), ``max_age`` seconds after it was last seen moving at most."""
+
+    enabled: bool = knob(False, "keep a stopped mover's moving label while it stands where it was seen moving "
+                                "(SemanticKITTI's convention)")
+    max_age: float = knob(10.0, "movers are remembered this long after the network last labelled them moving (s); "
+                                "bounds how long a false positive lives too", min=0.0, above=True, max=600.0)
+    voxel_size: float = knob(0.5, "world voxel size of the memory (m)", min=0.05, max=5.0)
+    share: float = knob(0.5, "a non-ground range-image segment at least this share in remembered voxels (or "
+                             "moving now) is labelled moving whole", min=0.0, above=True, max=1.0)
+
+    def __post_init__(self) -> None:
+        check_knobs(self, "movers")
+
+
+@dataclass(frozen=True)
 class MosConfig:
     """Everything the pipeline needs besides the model file.
 
@@ -346,6 +363,7 @@ class MosConfig:
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     postprocess: PostprocessConfig = field(default_factory=PostprocessConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    movers: MoverMemoryConfig = field(default_factory=MoverMemoryConfig)
     # Its knob's limits are the whole check: the range the descriptor and the params file advertise (1 is allowed:
     # only a certain mover is labelled moving).
     threshold: float = knob(0.0, "moving probability at or above which a point is labelled moving; 0 = the model's "

@@ -21,6 +21,7 @@ from ros2_mos.core.errors import ConfigError, ImplausibleScanError, ScanError
 from ros2_mos.core.inference import MosModel, default_model_path, shipped_models
 from ros2_mos.core.memory import retain_freed_memory
 from ros2_mos.core.metadata import check_threshold
+from ros2_mos.core.mover_memory import MoverMemory
 from ros2_mos.core.network_input import assemble_input
 from ros2_mos.core.odometry import BufferedScan, KissIcpOdometry, ScanBuffer
 from ros2_mos.core.postprocess import backproject
@@ -205,6 +206,7 @@ class MosPipeline:
         self.odometry = KissIcpOdometry(config.odometry)
         self.buffer = ScanBuffer(self.setup.history)
         self.belief = BeliefFilter(self.sensor, config.postprocess.temporal_weight)
+        self.movers = MoverMemory(config.movers)
         self.geometry: Any
         if config.geometry_backend == "torch":
             from ros2_mos.core.torch_geometry import TorchGeometry  # the only place the runtime may import torch
@@ -239,6 +241,7 @@ class MosPipeline:
         the stream makes meaningless, where the odometry's map still describes the place."""
         self.buffer.clear()
         self.belief.reset()
+        self.movers.reset()
 
     def process(
         self, points: np.ndarray, intensity: np.ndarray | None, timestamp: float, pose: np.ndarray | None = None
@@ -272,8 +275,10 @@ class MosPipeline:
         prob_image = self.belief.fuse(prob_image, image, pose)
         watch.lap("temporal")
         prob_image, point_prob = self._postprocess(prob_image, image)
-        moving = point_prob >= self.threshold
         watch.lap("postprocess")
+        prob_image, point_prob = self.movers.apply(prob_image, point_prob, image, pose, timestamp, self.threshold)
+        moving = point_prob >= self.threshold
+        watch.lap("mover_memory")
         self._remember(scan, image, pose, registered_pose, timestamp, moving, prob_image >= self.threshold)
         watch.lap("map_update")
         watch.total()

@@ -22,6 +22,7 @@ from ros2_mos.core.config import (
     SENSOR_PRESETS,
     Knob,
     MosConfig,
+    MoverMemoryConfig,
     OdometryConfig,
     PostprocessConfig,
     RegistrationConfig,
@@ -108,6 +109,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     *_pipeline_params("registration.", RegistrationConfig),
     *_pipeline_params("postprocess.", PostprocessConfig),
     *_pipeline_params("odometry.", OdometryConfig),
+    *_pipeline_params("movers.", MoverMemoryConfig),
     # --- input
     _param("input_topic", "/points", "PointCloud2 input topic (remapping works too)"),
     _param("qos.reliability", "best_effort", "input QoS: best_effort (sensor data: newest scan only) or reliable",
@@ -242,6 +244,7 @@ def mos_config(values: Mapping[str, Any]) -> MosConfig:
         registration=RegistrationConfig(**_section(RegistrationConfig, v, "registration.")),
         postprocess=PostprocessConfig(**_section(PostprocessConfig, v, "postprocess.")),
         odometry=OdometryConfig(**_section(OdometryConfig, v, "odometry.")),
+        movers=MoverMemoryConfig(**_section(MoverMemoryConfig, v, "movers.")),
         **_section(MosConfig, v),
     )
 

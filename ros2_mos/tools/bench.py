@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 STAGES = ("decode", "validate", "odometry", "projection", "registration", "residuals", "inference", "temporal",
-          "postprocess",
+          "postprocess", "mover_memory",
           "map_update", "encode")
 
 
