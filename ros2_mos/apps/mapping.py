@@ -22,6 +22,7 @@ from ros2_mos.core.config import MosConfig
 from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.projection import finite_mask
+from ros2_mos.io.atomic import atomic_path, write_bytes_atomically
 from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
 from ros2_mos.io.semantic_kitti import Frame, SemanticKittiSequence
 
@@ -335,7 +336,7 @@ def write_map(path: str | Path, points: np.ndarray, colors: np.ndarray | None = 
         import trimesh
 
         rgba = np.column_stack([rgb, np.full(len(rgb), 255, np.uint8)])
-        path.write_bytes(trimesh.PointCloud(pts, colors=rgba).export(file_type="ply"))
+        write_bytes_atomically(path, trimesh.PointCloud(pts, colors=rgba).export(file_type="ply"))
     elif suffix == ".pcd":
         _write_pcd(path, pts, rgb)
     else:
@@ -354,7 +355,7 @@ def _write_pcd(path: Path, points: np.ndarray, rgb: np.ndarray) -> None:
         f"TYPE F F F F\nCOUNT 1 1 1 1\nWIDTH {len(points)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
         f"POINTS {len(points)}\nDATA binary\n"
     )
-    path.write_bytes(header.encode("ascii") + record.tobytes())
+    write_bytes_atomically(path, header.encode("ascii") + record.tobytes())
 
 
 def map_paths(out: str | Path) -> tuple[Path, Path]:
@@ -432,6 +433,6 @@ def write_bev_png(
     for i, name in enumerate(maps):
         draw.text((i * (w + gap) + 6, 6), f"{name}  ({len(maps[name])} points, {resolution:.2f} m/px)", fill=(0, 0, 0))
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    image.save(path, format="PNG")
+    with atomic_path(path) as tmp:
+        image.save(tmp, format="PNG")
     return path

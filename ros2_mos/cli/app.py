@@ -58,3 +58,7 @@ def main() -> None:
     except MosError as exc:
         typer.secho(f"error: {exc}", err=True, fg=typer.colors.RED)
         sys.exit(1)
+    except OSError as exc:  # a write the library did not wrap (a full disk, a vanished folder): one line all the same
+        where = f"{exc.filename}: " if exc.filename else ""
+        typer.secho(f"error: {where}{exc.strerror or exc}", err=True, fg=typer.colors.RED)
+        sys.exit(1)

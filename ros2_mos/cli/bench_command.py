@@ -82,7 +82,9 @@ def bench(
         lines += node_lines
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text("\n".join(lines) + "\n")
+        from ros2_mos.io.atomic import write_text_atomically
+
+        write_text_atomically(out, "\n".join(lines) + "\n")
         typer.echo(f"wrote {out}")
 
 

@@ -34,6 +34,7 @@ def process(
     sensor: Optional[str] = typer.Option(None, help=SENSOR_HELP),
 ) -> None:
     """Run the node's pipeline offline over a bag; write static/moving/labels/images/odometry (and /tf)."""
+    from ros2_mos.core.errors import OutputError
     from ros2_mos.core.pipeline import MosPipeline
     from ros2_mos.io.bags import BagWriter, pointcloud_topic
     from ros2_mos.ros.messages import MessageTypes
@@ -57,7 +58,12 @@ def process(
             done, skipped, moving, points = _process_into(bag, processor, bag_in, in_topic, topics, copy_input, totals)
         if done == 0:
             fail(f"no scan of {in_topic} could be processed ({skipped} skipped); no bag written")
-        partial.rename(bag_out)
+        try:
+            partial.rename(bag_out)
+        except OSError as exc:
+            fail(f"cannot write {bag_out}: {exc.strerror or exc}; nothing was written")
+    except OutputError as exc:  # named after the bag, not the partial folder it was written in
+        fail(f"cannot write {bag_out}: {exc.reason}; the partial output was removed")
     except KeyboardInterrupt:
         fail(f"interrupted: the partial output was removed, nothing was written to {bag_out}", 130)
     finally:

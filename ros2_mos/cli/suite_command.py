@@ -62,7 +62,9 @@ def suite(
     typer.echo(table)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(table + "\n")
+        from ros2_mos.io.atomic import write_text_atomically
+
+        write_text_atomically(out, table + "\n")
     if breakdown is not None:
         print_breakdown(breakdown, top)
 

@@ -135,7 +135,9 @@ def ablation(
     typer.echo(table)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(table + "\n")
+        from ros2_mos.io.atomic import write_text_atomically
+
+        write_text_atomically(out, table + "\n")
 
 
 @app.command("import-lidar-mos")

@@ -27,3 +27,13 @@ class ModelError(MosError):
 
 class DatasetError(MosError):
     """A dataset folder or file is missing or does not follow the expected format."""
+
+
+class OutputError(MosError):
+    """An output could not be written (disk full, no permission, ...); no partial file is left behind.
+
+    ``path`` is the file that could not be written and ``reason`` the system's words for why, where known.
+    """
+
+    path: object = None
+    reason: str = ""

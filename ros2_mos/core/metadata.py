@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -146,14 +144,9 @@ def save_model_atomically(proto: Any, path: Path, check: Callable[[Path], None] 
     """
     import onnx
 
-    fd, tmp_name = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
+    from ros2_mos.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:  # a full disk: one OutputError line, neither file left half-written
         onnx.save(proto, tmp)
-        tmp.chmod(0o644)  # mkstemp makes 0600 files; a model is meant to be read by others
         if check is not None:
             check(tmp)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)

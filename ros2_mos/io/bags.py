@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.atomic import output_error
 from ros2_mos.io.pointcloud2 import fill_xyzi
 
 #: Message type names used in this project's bags.
@@ -174,11 +175,23 @@ class BagWriter:
         self.count = 0
 
     def __enter__(self) -> BagWriter:
-        self._writer.open()
+        try:
+            self._writer.open()
+        except OSError as exc:
+            raise output_error(self.path, exc) from None
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self._writer.close()
+    def __exit__(self, exc_type: object, *_: object) -> None:
+        """Close the bag; after an error the close may fail too (a full disk): that second error is not raised
+        over the first one (the caller removes the partial bag)."""
+        try:
+            self._writer.close()
+        except Exception as exc:
+            if exc_type is not None:
+                return
+            if isinstance(exc, OSError):
+                raise output_error(self.path, exc) from None
+            raise
 
     def write(self, topic: str, stamp_ns: int, msg: Any) -> None:
         """Serialise ``msg`` (a rosbags dataclass) and append it at ``stamp_ns`` on ``topic``."""
@@ -190,7 +203,10 @@ class BagWriter:
             self._connections[topic] = conn
         elif conn.msgtype != msgtype:
             raise DatasetError(f"topic {topic} already holds {conn.msgtype}, not {msgtype}")
-        self._writer.write(conn, int(stamp_ns), ts.serialize_cdr(msg, msgtype))
+        try:
+            self._writer.write(conn, int(stamp_ns), ts.serialize_cdr(msg, msgtype))
+        except OSError as exc:  # a full disk: one line, not the storage plugin's traceback
+            raise output_error(self.path, exc) from None
         self.count += 1
 
 

@@ -22,6 +22,7 @@ from typing import Iterator
 import numpy as np
 
 from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.atomic import atomic_open
 
 KITTI_TR = np.array(
     [
@@ -52,8 +53,8 @@ def write_scan(path: str | Path, points: np.ndarray, remission: np.ndarray | Non
     if pts.shape[1] == 3:
         rem = np.zeros(len(pts), np.float32) if remission is None else np.asarray(remission, np.float32)
         pts = np.column_stack([pts, rem])
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    np.ascontiguousarray(pts, dtype=np.float32).tofile(path)
+    with atomic_open(path) as f:  # whole or not at all (a full disk: OutputError, no truncated scan)
+        f.write(memoryview(np.ascontiguousarray(pts, dtype=np.float32)).cast("B"))
 
 
 def read_label(path: str | Path, expected_points: int | None = None) -> np.ndarray:
@@ -71,8 +72,9 @@ def read_label(path: str | Path, expected_points: int | None = None) -> np.ndarr
 
 
 def write_label(path: str | Path, labels: np.ndarray) -> None:
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    np.ascontiguousarray(labels, dtype=np.uint32).tofile(path)
+    """Write uint32 labels as a ``.label`` file, whole or not at all (a full disk: OutputError, no truncated file)."""
+    with atomic_open(path) as f:
+        f.write(memoryview(np.ascontiguousarray(labels, dtype=np.uint32)).cast("B"))
 
 
 def read_calib(path: str | Path) -> np.ndarray:
@@ -101,7 +103,8 @@ def write_calib(path: str | Path, tr: np.ndarray = KITTI_TR) -> None:
     """Write a calib.txt with identity projections P0..P3 and the given ``Tr``."""
     p = " ".join(f"{v:.12e}" for v in np.eye(4)[:3, :4].ravel())
     t = " ".join(f"{v:.12e}" for v in np.asarray(tr)[:3, :4].ravel())
-    Path(path).write_text("".join(f"P{i}: {p}\n" for i in range(4)) + f"Tr: {t}\n")
+    with atomic_open(path, "w", encoding="utf-8") as f:
+        f.write("".join(f"P{i}: {p}\n" for i in range(4)) + f"Tr: {t}\n")
 
 
 def read_poses(path: str | Path, tr: np.ndarray | None = None) -> np.ndarray:
@@ -127,7 +130,8 @@ def write_poses(path: str | Path, lidar_poses: np.ndarray, tr: np.ndarray | None
     poses = np.asarray(lidar_poses, dtype=np.float64)
     if tr is not None:
         poses = tr @ poses @ np.linalg.inv(tr)
-    np.savetxt(path, poses[:, :3, :4].reshape(-1, 12), fmt="%.12e")
+    with atomic_open(path, "w", encoding="utf-8") as f:
+        np.savetxt(f, poses[:, :3, :4].reshape(-1, 12), fmt="%.12e")
 
 
 def read_times(path: str | Path) -> np.ndarray:
@@ -171,7 +175,8 @@ def _load_numbers(path: Path, ndmin: int) -> np.ndarray:
 
 
 def write_times(path: str | Path, times: np.ndarray) -> None:
-    np.savetxt(path, np.asarray(times, dtype=np.float64), fmt="%.6e")
+    with atomic_open(path, "w", encoding="utf-8") as f:
+        np.savetxt(f, np.asarray(times, dtype=np.float64), fmt="%.6e")
 
 
 @dataclass

@@ -424,10 +424,10 @@ class Trainer:
         }
 
     def _save(self, name: str, state: dict[str, Any]) -> None:
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        tmp = self.out_dir / f".{name}.tmp"
-        torch.save(state, tmp)
-        tmp.replace(self.out_dir / name)
+        from ros2_mos.io.atomic import atomic_path
+
+        with atomic_path(self.out_dir / name) as tmp:  # a full disk: OutputError, the last checkpoint kept whole
+            torch.save(state, tmp)
 
     def _maybe_resume(self) -> None:
         last = self.out_dir / "last.pt"
@@ -462,7 +462,9 @@ class Trainer:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             import yaml
 
-            (self.out_dir / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+            from ros2_mos.io.atomic import write_text_atomically
+
+            write_text_atomically(self.out_dir / "config.yaml", yaml.safe_dump(config.to_dict(), sort_keys=False))
         started = time.monotonic()
         generator = torch.Generator().manual_seed(config.seed)
         for epoch in range(self.start_epoch, config.epochs):
