@@ -8,6 +8,7 @@ bag with rosbags message types and writes the node's topics to a new bag.
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import signal
@@ -86,6 +87,7 @@ def _process_into(bag: Any, processor: Any, bag_in: Path, in_topic: str, topics:
     from ros2_mos.io.bags import iter_pointclouds
 
     done = skipped = moving = points = 0
+    problem = ""
     for stamp, msg in tqdm(iter_pointclouds(bag_in, in_topic), desc="process", unit="scan"):
         if copy_input:
             bag.write(in_topic, stamp, msg)
@@ -95,6 +97,10 @@ def _process_into(bag: Any, processor: Any, bag_in: Path, in_topic: str, topics:
             skipped += 1
             tqdm.write(f"warning: scan at {stamp * 1e-9:.3f} s skipped: {exc}")
             continue
+        finally:
+            if processor.stream_problem and processor.stream_problem != problem:  # once, as the node logs it
+                tqdm.write(f"warning: {processor.stream_problem}")
+            problem = processor.stream_problem
         if out.result.sensor_mismatch:  # every label would be wrong: stop before writing any
             fail(f"{bag_in} {in_topic}, scan at {stamp * 1e-9:.3f} s: {out.result.sensor_mismatch}")
         for note in out.notes:
@@ -125,8 +131,9 @@ def replay(
     """Publish a bag's PointCloud2 messages with rclpy at the recorded rate (stands in for `ros2 bag play`)."""
     from ros2_mos.io.bags import pointcloud_topic
 
-    if rate < 0:
-        fail("--rate must be >= 0")
+    for option, value in (("--rate", rate), ("--wait", wait), ("--sync-timeout", sync_timeout)):
+        if not (math.isfinite(value) and value >= 0):  # NaN fails every comparison: `< 0` let it through
+            fail(f"{option} must be a finite number >= 0, got {value}")
     in_topic = pointcloud_topic(bag, topic)
     import rclpy
 
