@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ros2_mos.core.errors import ModelError
+from ros2_mos.core.inference import read_metadata
 from ros2_mos.core.metadata import TRAINING_CONFIG_KEY, read_training_config, write_training_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -25,9 +26,10 @@ def test_every_shipped_model_names_an_existing_training_config(model):
     assert config, f"{model.name} names no {TRAINING_CONFIG_KEY}"
     assert config.startswith("configs/") and not config.startswith("configs/experiments/"), config
     assert (REPO / config).is_file(), f"{model.name} names {config}, which is not in the repository"
+    pytest.importorskip("torch")  # the trainer's module needs it
     from ros2_mos.training.trainer import TrainConfig
 
-    TrainConfig.from_yaml(REPO / config)  # a config the trainer reads
+    assert TrainConfig.from_yaml(REPO / config).sensor_config.name == read_metadata(model).sensor.name
 
 
 def test_naming_a_config_changes_no_output(tmp_path):
