@@ -66,7 +66,7 @@ class Knob:
     """The one definition of a configuration value besides its name and default: type, meaning, limits.
 
     The dataclasses below validate themselves from it, and the node's ROS parameters
-    (:mod:`ros2_mos.ros.params`: descriptors, config/mos.yaml, the README table) are made from it.
+    (:mod:`ros2_mos.ros.params`: descriptors, config/mos.yaml, the table of docs/parameters.md) are made from it.
     ``min``/``max`` are inclusive unless ``above`` is set (then the value must exceed ``min``);
     ``unset`` is the value a ROS parameter (which has no None) takes for an optional field's None.
     """
