@@ -35,9 +35,10 @@ from ros2_mos.ros.params import (
     NODE_NAME,
     PARAMS,
     ParamSpec,
-    load_params_file,
+    fully_qualified_name,
     mos_config,
     node_settings,
+    read_params_file,
 )
 from ros2_mos.ros.processor import ScanOutput, ScanProcessor, SkippedScan
 from ros2_mos.ros.stats import NodeStats, summary_line
@@ -280,9 +281,11 @@ class MosNode(Node):
         """
         started = self._worker is not None
         self.stop()
+        name, logger = self.get_fully_qualified_name(), self.get_logger().name  # robot1.mos_node for /robot1/mos_node
         super().destroy_node()
         if started:
-            rclpy.logging.get_logger(NODE_NAME).info("final statistics: " + summary_line(self.stats.snapshot()))
+            rclpy.logging.get_logger(logger).info(f"final statistics: {summary_line(self.stats.snapshot())} "
+                                                  f"(node {name})")
 
 
 def _params_files(argv: list[str]) -> list[str]:
@@ -290,10 +293,22 @@ def _params_files(argv: list[str]) -> list[str]:
     return [argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == "--params-file"]
 
 
-def _node_name(argv: list[str]) -> str:
-    """The node's name on a ROS command line (``-r __node:=NAME`` remaps it)."""
-    names = [arg.split(":=", 1)[1] for arg in argv if arg.startswith("__node:=") or arg.startswith("__name:=")]
-    return names[-1] if names else NODE_NAME
+def _node_fqn(argv: list[str]) -> str:
+    """The node's fully qualified name on a ROS command line: ``-r __node:=NAME`` and ``-r __ns:=/NS`` remap it
+    (also as ``-r mos_node:__ns:=/NS``, for this node alone), as a launch file's ``name=`` and ``namespace=`` do."""
+    name, namespace = NODE_NAME, "/"
+    for flag, rule in zip(argv, argv[1:]):
+        target, sep, value = rule.partition(":=")
+        if flag not in ("-r", "--remap") or not sep:
+            continue
+        node, _, key = target.rpartition(":")
+        if node and node != NODE_NAME:
+            continue
+        if key in ("__node", "__name"):
+            name = value
+        elif key == "__ns":
+            namespace = value
+    return fully_qualified_name(name, namespace)
 
 
 def main(args: list[str] | None = None) -> None:
@@ -302,9 +317,16 @@ def main(args: list[str] | None = None) -> None:
     transport = transport_summary(os.environ, use_large_message_profile())
     argv = sys.argv if args is None else args
     try:
-        # Read as the commands read it (a missing, broken or foreign file is one line, not rcl's traceback).
+        # Read as the commands read it (a missing, broken or foreign file is one line, not rcl's traceback), with the
+        # sections rcl gives this node's full name.
+        fqn = _node_fqn(argv)
         for params_file in _params_files(argv):
-            load_params_file(params_file, _node_name(argv))
+            _, missed = read_params_file(params_file, fqn)
+            if missed:
+                rclpy.logging.get_logger(NODE_NAME).warning(
+                    f"{params_file}: section{'s' if len(missed) > 1 else ''} {missed} not applied to {fqn} (rcl "
+                    f"gives a section to the node whose full name it matches): key it {fqn!r} or '/**/"
+                    f"{fqn.rsplit('/', 1)[1]}'")
         rclpy.init(args=args)
     except (ConfigError, RuntimeError) as exc:  # rcl's own argument errors are RuntimeErrors (RCLError)
         first = (str(exc).splitlines() or [""])[0]

@@ -330,24 +330,83 @@ def _ros_yaml_loader() -> Any:
     return RosParamsLoader
 
 
-def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
-    """The parameters a ROS params file gives ``node_name`` (its own section over ``/**``), flattened.
+#: A params-file section key rcl accepts: names or wildcards (``*`` one name, ``**`` any number) between slashes.
+_SECTION_RE = re.compile(r"^/?(\*\*?|[A-Za-z_][A-Za-z0-9_]*)(/(\*\*?|[A-Za-z_][A-Za-z0-9_]*))*$")
 
-    Numbers are read as ROS reads them (``1e4`` is a float, as for ``mos_node --params-file``), and a
-    file without a section for the node is an error for the node and every command alike.
+
+def fully_qualified_name(name: str = NODE_NAME, namespace: str = "/") -> str:
+    """``/namespace/name`` as ROS writes it (``mos_node`` in ``/``: ``/mos_node``)."""
+    namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    return f"{namespace}/{name}"
+
+
+def section_applies(key: str, node: str) -> bool:
+    """Whether rcl gives a params-file section keyed ``key`` to the node with the fully qualified name ``node``.
+
+    rclpy's rule (Jazzy, checked against it in test_node_params): a leading ``/`` is added to the key, then
+    ``/*`` stands for one name and ``/**`` for any number of them, and the key must match the whole name. So
+    ``mos_node`` is ``/mos_node`` and nothing else; ``/**``, ``/**/mos_node``, ``/robot1/*`` and
+    ``/robot1/mos_node`` all reach ``/robot1/mos_node``.
     """
-    data = read_yaml_mapping(path, "params file", _ros_yaml_loader())
-    values: dict[str, Any] = {}
-    for section in ("/**", node_name, f"/{node_name}"):
-        entry = data.get(section)
-        if entry is None:
-            continue
+    pattern = ("/" + key.lstrip("/")).replace("/*", r"(/\w+)")
+    return re.fullmatch(pattern, node, flags=re.ASCII) is not None
+
+
+def _sections(path: str | Path) -> list[tuple[str, Any]]:
+    """The top-level sections of a params file in file order, the repeats of a key merged into its first place (as
+    rcl's parser merges them); each checked to be a node name rcl accepts holding a ``ros__parameters`` mapping."""
+    data = read_yaml_mapping(path, "params file", _ros_yaml_loader())  # every way of failing to read: one line
+    if not data:
+        return []
+    loader = _ros_yaml_loader()(Path(path).read_text(encoding="utf-8"))
+    try:
+        root = loader.get_single_node()
+        pairs = [(loader.construct_object(k, deep=True), loader.construct_object(v, deep=True))
+                 for k, v in root.value]
+    finally:
+        loader.dispose()
+    merged: dict[str, tuple[str, dict[str, Any]]] = {}  # key -> (key, values); `a` and `/a` are two (as in rcl)
+    for key, entry in pairs:
+        if not isinstance(key, str) or not _SECTION_RE.match(key):
+            raise ConfigError(f"{path}: section {key!r} is not a node name rcl accepts (names and * or ** "
+                              "between slashes, e.g. /robot1/mos_node or /**)")
         if not isinstance(entry, Mapping) or not isinstance(entry.get("ros__parameters"), Mapping):
-            raise ConfigError(f"{path}: section {section!r} needs a 'ros__parameters' mapping")
-        values.update(_flatten(entry["ros__parameters"]))
-    if not values and data:
-        raise ConfigError(f"{path}: no parameters for node {node_name!r} (sections: {sorted(data)})")
-    return values
+            raise ConfigError(f"{path}: section {key!r} needs a 'ros__parameters' mapping")
+        merged.setdefault(key, (key, {}))[1].update(_flatten(entry["ros__parameters"]))
+    return list(merged.values())
+
+
+def read_params_file(path: str | Path, node: str = NODE_NAME) -> tuple[dict[str, Any], list[str]]:
+    """The parameters a ROS params file gives the node ``node`` (a name, or a fully qualified name such as
+    ``/robot1/mos_node``) exactly as rcl applies them, flattened; and the sections meant for it that rcl would not
+    apply (see below).
+
+    Every section whose key matches the node's name applies (:func:`section_applies`), later sections over
+    earlier ones, as rclpy applies them. A file without a section for the node is an error. Where only
+    catch-all sections (``/**``) apply, a section that names this node but does not reach it (``mos_node:`` for a
+    node in ``/robot1``) is returned as missed: its values would be silently lost.
+    Numbers are read as ROS reads them (``1e4`` is a float, as for ``mos_node --params-file``).
+    """
+    node = node if node.startswith("/") else fully_qualified_name(node)
+    name = node.rsplit("/", 1)[1]
+    sections = _sections(path)
+    values: dict[str, Any] = {}
+    applied = [key for key, _ in sections if section_applies(key, node)]
+    for key, params in sections:
+        if key in applied:
+            values.update(params)
+    if sections and not applied:
+        raise ConfigError(f"{path}: no parameters for node {node!r} (sections: {[k for k, _ in sections]}); "
+                          f"rcl applies a section to the node whose full name it matches: key it {node!r}, or "
+                          f"'/**/{name}' for any namespace")
+    named = any(key.rsplit("/", 1)[-1] == name for key in applied)
+    missed = [] if named else [key for key, _ in sections if key.rsplit("/", 1)[-1] == name and key not in applied]
+    return values, missed
+
+
+def load_params_file(path: str | Path, node: str = NODE_NAME) -> dict[str, Any]:
+    """The parameters a ROS params file gives the node ``node`` (:func:`read_params_file`), flattened."""
+    return read_params_file(path, node)[0]
 
 
 def describe() -> str:
@@ -412,6 +471,7 @@ def load_params(path: str | Path | None = None, model: str | Path | None = None,
 
 __all__ = [
     "NODE_NAME", "PARAMS", "SPECS", "NodeSettings", "ParamSpec", "StaticMapSettings", "check_value",
-    "defaults", "describe", "load_params", "load_params_file", "mos_config", "node_settings", "params_file_text",
+    "defaults", "describe", "fully_qualified_name", "load_params", "load_params_file", "mos_config", "node_settings",
+    "params_file_text", "read_params_file", "section_applies",
     "resolve",
 ]

@@ -425,7 +425,7 @@ def test_node_and_commands_read_a_params_file_alike(tmp_path, tiny_model_path):
     foreign.write_text("other_node:\n  ros__parameters:\n    threshold: 0.5\n")
     values = load_params_file(exponent)
     assert values["odometry.max_range"] == 100.0 and mos_config(values).residuals.max_range == 45.0
-    with pytest.raises(ConfigError, match="no parameters for node 'mos_node'"):
+    with pytest.raises(ConfigError, match="no parameters for node '/mos_node'"):
         load_params_file(foreign)
     for path, ok in ((exponent, True), (foreign, False)):
         node = subprocess.Popen([executable("mos_node"), "--ros-args", "--params-file", str(path)],
@@ -445,4 +445,4 @@ def test_node_and_commands_read_a_params_file_alike(tmp_path, tiny_model_path):
         if ok:
             assert code == 0 and any("ready in" in line for line in lines), out
         else:
-            assert code == 1 and "cannot start" in out and "no parameters for node 'mos_node'" in out, out
+            assert code == 1 and "cannot start" in out and "no parameters for node '/mos_node'" in out, out

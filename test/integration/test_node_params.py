@@ -4,6 +4,10 @@ them (namespaces, wildcards), and settings refused at start-up (issue 32, items 
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -13,7 +17,9 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from rclpy.parameter import Parameter  # noqa: E402
-from ros_harness import isolate_ros  # noqa: E402
+from ros_harness import child_env, executable, isolate_ros  # noqa: E402
+
+from ros2_mos.core.errors import ConfigError  # noqa: E402
 
 DOMAIN = 60 + os.getpid() % 150
 
@@ -43,3 +49,88 @@ def test_integers_are_taken_for_float_parameters(tiny_model_path):
         assert node.get_parameter("threshold").value == 1.0
         assert node.get_parameter("threshold").type_ == Parameter.Type.DOUBLE
         assert node.settings.reset_after_gap == 2.0
+
+
+def _rcl_applies(path, node: str) -> dict[str, Any]:
+    """What rclpy gives the node ``node`` (fully qualified) out of the params file ``path``."""
+    from rclpy.node import Node
+
+    namespace, _, name = node.rpartition("/")
+    isolate_ros(DOMAIN)
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["probe", "--ros-args", "--params-file", str(path)])
+    try:
+        probe = Node(name, namespace=namespace or "/", context=context)
+        try:
+            return {k: p.value for k, p in probe._parameter_overrides.items()}
+        finally:
+            probe.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_sections_reach_the_node_exactly_as_rcl_applies_them(tmp_path):
+    """Issue 32.2: the package's reading of a params file is rclpy's, for every key form and namespace."""
+    from test_params_sections import KEYS
+
+    from ros2_mos.ros.params import read_params_file
+
+    def section(key: str, threshold: float) -> str:
+        return f"{key}:\n  ros__parameters:\n    threshold: {threshold}\n"
+
+    files = [section(key, 0.5) for key, _, _ in KEYS] + [
+        section("/robot1/mos_node", 0.1) + section("/**", 0.2),
+        section("/**", 0.2) + section("/robot1/mos_node", 0.1),
+        section("/**/mos_node", 0.3) + section("/robot1/mos_node", 0.1) + section("/**/mos_node", 0.4),
+        section("robot1/mos_node", 0.1) + section("/**", 0.2) + section("/robot1/mos_node", 0.3),
+        section("/robot1/*", 0.4) + section("/*/mos_node", 0.3) + section("mos_node", 0.6),
+    ]
+    nodes = ["/mos_node", "/robot1/mos_node", "/robot2/mos_node", "/a/b/mos_node", "/robot1/other"]
+    for k, text in enumerate(files):
+        path = tmp_path / f"p{k}.yaml"
+        path.write_text(text)
+        for node in nodes:
+            expected = _rcl_applies(path, node)
+            if expected:
+                assert read_params_file(path, node)[0] == expected, (text, node)
+            else:
+                with pytest.raises(ConfigError, match="no parameters for node"):
+                    read_params_file(path, node)
+
+
+def _run_node(args: list[str], domain: int, stop_when_ready: bool = True) -> tuple[int, str]:
+    node = subprocess.Popen([executable("mos_node"), "--ros-args", *args], env=child_env(domain),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 30
+    while node.poll() is None and not any("ready in" in line for line in lines) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if node.poll() is None:
+        node.send_signal(signal.SIGINT)
+    code = node.wait(timeout=15)
+    reader.join(5)
+    return code, "".join(lines)
+
+
+def test_a_namespaced_node_reads_its_section_and_names_itself(tmp_path, tiny_model_path):
+    """Issue 32.2: `--params-file f.yaml -r __ns:=/robot1` with `/robot1/mos_node:` was refused; `mos_node:` was
+    taken by the check but not applied by rcl (defaults, silently). The final statistics name the node."""
+    good = tmp_path / "good.yaml"
+    good.write_text(f"/robot1/mos_node:\n  ros__parameters:\n    model: {tiny_model_path}\n    threshold: 1\n")
+    code, out = _run_node(["--params-file", str(good), "-r", "__ns:=/robot1"], DOMAIN + 1)
+    assert code == 0 and "threshold 1.00" in out and "Traceback" not in out, out
+    assert "final statistics: " in out and "(node /robot1/mos_node)" in out, out
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text(f"mos_node:\n  ros__parameters:\n    model: {tiny_model_path}\n")
+    code, out = _run_node(["--params-file", str(wrong), "-r", "__ns:=/robot1"], DOMAIN + 1)
+    assert code == 1 and "cannot start" in out and "no parameters for node '/robot1/mos_node'" in out, out
+    assert "Traceback" not in out
+
+
+def test_a_sensor_frame_equal_to_the_odom_frame_is_refused(tiny_model_path):
+    """Issue 32.8: a self-transform started silently."""
+    code, out = _run_node(["-p", f"model:={tiny_model_path}", "-p", "sensor_frame:=odom"], DOMAIN + 2)
+    assert code == 1 and "cannot start: parameters 'sensor_frame' and 'odom_frame' are both 'odom'" in out, out
+    assert "Traceback" not in out
