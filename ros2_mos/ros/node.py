@@ -12,6 +12,7 @@ never imports torch.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import threading
@@ -51,10 +52,13 @@ def _descriptor(spec: ParamSpec) -> Any:
     desc = ParameterDescriptor(name=spec.name, description=spec.description,
                                additional_constraints=spec.constraints, read_only=True)
     if spec.min is not None and spec.max is not None:
+        low: float = spec.min
+        if spec.knob.above and spec.knob.unset != spec.min:  # ROS ranges are inclusive: the first value above min
+            low = math.nextafter(float(low), math.inf) if spec.type is float else int(low) + 1
         if spec.type is float:
-            desc.floating_point_range = [FloatingPointRange(from_value=float(spec.min), to_value=float(spec.max))]
+            desc.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(spec.max))]
         elif spec.type is int:
-            desc.integer_range = [IntegerRange(from_value=int(spec.min), to_value=int(spec.max), step=1)]
+            desc.integer_range = [IntegerRange(from_value=int(low), to_value=int(spec.max), step=1)]
     return desc
 
 

@@ -127,6 +127,12 @@ def test_a_namespaced_node_reads_its_section_and_names_itself(tmp_path, tiny_mod
     code, out = _run_node(["--params-file", str(wrong), "-r", "__ns:=/robot1"], DOMAIN + 1)
     assert code == 1 and "cannot start" in out and "no parameters for node '/robot1/mos_node'" in out, out
     assert "Traceback" not in out
+    # Beside a catch-all section the node starts, and says which section it does not get.
+    both = tmp_path / "both.yaml"
+    both.write_text(f"/**:\n  ros__parameters:\n    model: {tiny_model_path}\n"
+                    "mos_node:\n  ros__parameters:\n    threshold: 0.3\n")
+    code, out = _run_node(["--params-file", str(both), "-r", "__ns:=/robot1"], DOMAIN + 1)
+    assert code == 0 and "section ['mos_node'] not applied to /robot1/mos_node" in out, out
 
 
 def test_a_sensor_frame_equal_to_the_odom_frame_is_refused(tiny_model_path):
@@ -134,3 +140,21 @@ def test_a_sensor_frame_equal_to_the_odom_frame_is_refused(tiny_model_path):
     code, out = _run_node(["-p", f"model:={tiny_model_path}", "-p", "sensor_frame:=odom"], DOMAIN + 2)
     assert code == 1 and "cannot start: parameters 'sensor_frame' and 'odom_frame' are both 'odom'" in out, out
     assert "Traceback" not in out
+
+
+def test_the_descriptor_ranges_are_the_checked_ranges():
+    """Issue 32.6: the range a descriptor advertises (`ros2 param describe`) is the one the node checks; ROS ranges
+    are inclusive, so a bound that must be exceeded starts at the first value above it."""
+    from ros2_mos.ros.node import _descriptor
+    from ros2_mos.ros.params import PARAMS, check_value
+
+    for spec in PARAMS:
+        desc = _descriptor(spec)
+        ranges = list(desc.floating_point_range) + list(desc.integer_range)
+        if not ranges:
+            continue
+        low, high = ranges[0].from_value, ranges[0].to_value
+        assert check_value(spec, spec.type(low)) == low and check_value(spec, spec.type(high)) == high, spec.name
+        if spec.knob.above and spec.knob.unset != spec.min:
+            with pytest.raises(ConfigError, match=spec.name):
+                check_value(spec, spec.type(spec.min))
