@@ -172,3 +172,17 @@ def test_a_turn_no_vehicle_makes_resets_the_buffer(tiny_model_path, sequence):
     assert not res.reset
     with pytest.raises(ConfigError, match="max_rotation_jump"):
         OdometryConfig(max_rotation_jump=0.0)
+
+
+def test_the_diagnostics_say_why_the_labels_are_degraded(tiny_model_path, sequence):
+    """Issue 32.1: after a frame_id change /diagnostics says so (WARN), not only "0 of 2 past scans"."""
+    from ros2_mos.ros.diagnostics import node_status
+    from ros2_mos.ros.stats import NodeStats
+
+    proc = make_processor(tiny_model_path)
+    proc.process(msg(T0, *sequence[0][:2]))
+    out = proc.process(msg(T0 + PERIOD, rear(sequence[1][0]), sequence[1][1], "rear"))
+    stats = NodeStats()
+    stats.on_received(1.0)
+    level, message, values = node_status(stats.snapshot(), out)
+    assert level == m.WARN and "frame_id changed from 'front' to 'rear'" in message and values["frame_id"] == "rear"
