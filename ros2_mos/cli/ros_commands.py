@@ -164,7 +164,8 @@ def replay(
 
 @app.command()
 def params(
-    markdown: bool = typer.Option(False, "--markdown", help="The README's table instead of the params file"),
+    markdown: bool = typer.Option(False, "--markdown",
+                                  help="The parameter table in Markdown (docs/parameters.md), not the params file"),
 ) -> None:
     """Print the node's params file with every parameter at its default (config/mos.yaml), or its table."""
     from ros2_mos.ros.params import describe, params_file_text

@@ -6,7 +6,9 @@ builds the same pipeline. The table :data:`PARAMS` lists every parameter: the
 pipeline's come from the knobs of the configuration dataclasses
 (:mod:`ros2_mos.core.config`), the node's own are defined here. The node turns each
 entry into a ``declare_parameter`` call with a descriptor; ``config/mos.yaml``
-(:func:`params_file_text`) and the README table (:func:`describe`) are made from it.
+(:func:`params_file_text`, ``ros2-mos params``) and the table of docs/parameters.md (:func:`describe`,
+``ros2-mos params --markdown``) are made from it: one definition per parameter (name, type, default, limits,
+description), nowhere repeated.
 """
 
 from __future__ import annotations
@@ -69,7 +71,7 @@ class ParamSpec:
 
     @property
     def constraints(self) -> str:
-        """The limits in words ("one of: a, b", ">= 1; <= 16"), for descriptors, the params file and the README."""
+        """The limits in words ("one of: a, b", ">= 1; <= 16"), for descriptors, the params file and the docs."""
         parts = ["one of: " + ", ".join(self.choices)] if self.choices else []
         if self.min is not None:
             parts.append(f"{'>' if self.knob.above else '>='} {self.min:g}")
@@ -410,7 +412,7 @@ def load_params_file(path: str | Path, node: str = NODE_NAME) -> dict[str, Any]:
 
 
 def describe() -> str:
-    """A Markdown table of the parameters (for the README)."""
+    """The parameter table in Markdown (docs/parameters.md; ``ros2-mos params --markdown`` prints it)."""
     rows = ["| parameter | default | limits | description |", "|---|---|---|---|"]
     for p in PARAMS:
         rows.append(f"| `{p.name}` | `{p.default!r}` | {p.constraints} | {p.description} |")
