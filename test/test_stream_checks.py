@@ -94,6 +94,8 @@ def test_interleaved_sensors_are_reported(tiny_model_path, sequence, policy):
     assert max(moving_share(o) for o in outs) < 0.1
     if policy == "skip":
         assert len(outs) == 8 and outs[-1].result.residuals_complete and "only 'front'" in proc.stream_problem
+    else:  # every switch resets; once the interleaving is reported, without a note (a log line) per scan
+        assert all(o.reset for o in outs[1:]) and not any(o.notes for o in outs[4:]), [o.notes for o in outs]
     # The second sensor goes away: the report clears once the window has passed.
     for i in range(8, 12):
         proc.process(msg(T0 + i * PERIOD + 3 * 10**9, *sequence[i][:2]))
@@ -186,3 +188,13 @@ def test_the_diagnostics_say_why_the_labels_are_degraded(tiny_model_path, sequen
     stats.on_received(1.0)
     level, message, values = node_status(stats.snapshot(), out)
     assert level == m.WARN and "frame_id changed from 'front' to 'rear'" in message and values["frame_id"] == "rear"
+
+
+def test_skip_reports_when_only_another_sensor_arrives(tiny_model_path, sequence):
+    """With frame_change: skip, the first sensor gone and another one there: nothing is labelled, and it is said."""
+    proc = make_processor(tiny_model_path, frame_change="skip")
+    proc.process(msg(T0, *sequence[0][:2]))
+    for i in range(1, 30):
+        with pytest.raises(SkippedScan):
+            proc.process(msg(T0 + i * PERIOD, rear(sequence[i % 12][0]), sequence[i % 12][1], "rear"))
+    assert "none of the stream's 'front'" in proc.stream_problem and "nothing is labelled" in proc.stream_problem

@@ -159,23 +159,30 @@ class ScanProcessor:
             self._frame_changes.append(stamp)
         self._frame_changes = [t for t in self._frame_changes if abs(stamp - t) <= window]
         recent = sorted(self._frames_seen)
-        if len(self._frame_changes) >= 2 or (self.settings.frame_change == "skip" and len(recent) > 1):
+        skip = self.settings.frame_change == "skip"
+        reported = self.stream_problem
+        if skip and previous is not None and previous not in self._frames_seen:
+            self.stream_problem = (f"clouds of frame_id {', '.join(map(repr, recent))} arrive, none of the stream's "
+                                   f"{previous!r} (frame_change: skip): nothing is labelled; restart the node for "
+                                   "the new sensor, or set frame_change: reset")
+        elif len(self._frame_changes) >= 2 or (skip and len(recent) > 1):
             self.stream_problem = (f"clouds of {len(recent)} sensors interleaved on one topic (frame_ids "
                                    f"{', '.join(map(repr, recent))}): give each sensor its own topic and node"
-                                   + (f"; only {self.frame_id!r} is labelled" if self.settings.frame_change == "skip"
+                                   + (f"; only {self.frame_id!r} is labelled" if skip
                                       else " (with frame_change: skip the first one is labelled alone)"))
         else:
             self.stream_problem = ""
         if not changed:
             self.frame_id = frame_id
             return False
-        if self.settings.frame_change == "skip":
+        if skip:
             raise SkippedScan("other_frame", f"cloud at {stamp * 1e-9:.3f} s has frame_id {frame_id!r}, not the "
                               f"stream's {previous!r} (another sensor? frame_change: skip): skipped")
         self.reset()
         self.frame_id = frame_id
-        notes.append(f"frame_id changed from {previous!r} to {frame_id!r} (another sensor on the topic?): scan "
-                     "buffer and odometry reset")
+        if not (reported and self.stream_problem):  # while interleaving is reported, not one line per scan
+            notes.append(f"frame_id changed from {previous!r} to {frame_id!r} (another sensor on the topic?): scan "
+                         "buffer and odometry reset")
         return True
 
     def _build(self, wanted: frozenset[str] | None, stamp: int, frame_id: str, view: Any, kept: np.ndarray,
