@@ -60,8 +60,8 @@ class Scene:
         return labels
 
 
-def memory(max_age: float = 2.0, share: float = 0.5, **kw) -> MoverMemory:
-    return MoverMemory(MoverMemoryConfig(enabled=True, max_age=max_age, share=share, **kw))
+def memory(max_age: float = 2.0, share: float = 0.5, min_scans: int = 2, **kw) -> MoverMemory:
+    return MoverMemory(MoverMemoryConfig(enabled=True, max_age=max_age, share=share, min_scans=min_scans, **kw))
 
 
 CAR_ROWS = slice(2, 6)
@@ -108,10 +108,15 @@ def test_labels_of_the_memory_do_not_refresh_it():
 
 
 def test_a_false_positive_blob_is_forgotten_after_max_age():
-    """A pole labelled moving in one scan (the network's mistake) is labelled moving for max_age seconds at most."""
-    mem = memory(max_age=3.0)
+    """A pole labelled moving in two scans (the network's mistake) is labelled moving for max_age seconds at most;
+    labelled moving in one scan only (min_scans 2), it is not remembered at all."""
     pole = slice(40, 42)
-    Scene().box(slice(0, 6), pole, 5.25, 0.25, 0.9).run(mem, 10.0)  # the false positive, at t = 10 s
+    once = memory(max_age=3.0)
+    Scene().box(slice(0, 6), pole, 5.25, 0.25, 0.9).run(once, 10.0)
+    assert not Scene().box(slice(0, 6), pole, 5.25, 0.25, 0.0).run(once, 10.1).any()
+    mem = memory(max_age=3.0)
+    for t in (9.9, 10.0):  # the false positive, last at t = 10 s
+        Scene().box(slice(0, 6), pole, 5.25, 0.25, 0.9).run(mem, t)
     survived = []
     for k in range(1, 51):  # then static in the network's output for 5 s
         t = 10.0 + 0.1 * k
@@ -127,7 +132,8 @@ def test_no_trail_static_things_next_to_where_a_mover_passed_stay_static():
     mem = memory(max_age=5.0, share=0.5)
     for k in range(4):
         Scene().box(CAR_ROWS, slice(10 + 4 * k, 20 + 4 * k), 10.25, 0.25 + 2 * k, 0.9).run(mem, 0.1 * k)
-    Scene().box(CAR_ROWS, slice(30, 32), 12.25, 0.25, 0.9).run(mem, 0.4)  # the mover's tail where the car stands
+    for t in (0.35, 0.4):  # the mover's tail where the car stands, in two scans
+        Scene().box(CAR_ROWS, slice(30, 32), 12.25, 0.25, 0.9).run(mem, t)
     parked = Scene().box(CAR_ROWS, slice(30, 40), 12.25, 0.25, 0.0)
     labels = parked.run(mem, 0.5)
     assert not labels.any()  # the wall where the mover was, the ground, the parked car: all static
@@ -136,7 +142,8 @@ def test_no_trail_static_things_next_to_where_a_mover_passed_stay_static():
     assert occluded.run(mem, 0.6)[CAR_ROWS, 30:32].all()
     # A lower share: the parked car (20 %) is labelled.
     mem_low = memory(max_age=5.0, share=0.2)
-    Scene().box(CAR_ROWS, slice(30, 32), 12.25, 0.25, 0.9).run(mem_low, 0.4)
+    for t in (0.35, 0.4):
+        Scene().box(CAR_ROWS, slice(30, 32), 12.25, 0.25, 0.9).run(mem_low, t)
     assert parked.run(mem_low, 0.5)[CAR_ROWS, 30:40].all()
 
 
@@ -158,6 +165,15 @@ def test_reset_forgets():
     assert not standing().run(mem, 0.5).any()
 
 
+def test_a_voxel_counts_once_it_was_moving_in_min_scans_scans():
+    mem = memory(max_age=2.0, min_scans=5)
+    drive_and_stop(mem)  # the last columns were moving in fewer than 5 scans: too little of the car is remembered
+    assert not standing().run(mem, 0.5).any()
+    for k in range(5):  # a car seen moving in place 5 times (creeping within its voxels)
+        Scene().box(CAR_ROWS, slice(40, 50), 15.25, 0.25, 0.9).run(mem, 1.0 + 0.1 * k)
+    assert Scene().box(CAR_ROWS, slice(40, 50), 15.25, 0.25, 0.0).run(mem, 1.5)[CAR_ROWS, 40:50].all()
+
+
 def test_disabled_changes_nothing():
     mem = MoverMemory(MoverMemoryConfig(enabled=False))
     drive_and_stop_scene = Scene().box(CAR_ROWS, slice(10, 20), 10.25, 0.25, 0.9)
@@ -169,7 +185,7 @@ def test_disabled_changes_nothing():
 
 
 def test_the_voxel_count_is_capped_keeping_the_newest():
-    mem = MoverMemory(MoverMemoryConfig(enabled=True, max_age=100.0), max_voxels=50)
+    mem = MoverMemory(MoverMemoryConfig(enabled=True, max_age=100.0, min_scans=1), max_voxels=50)
     Scene().box(CAR_ROWS, slice(10, 20), 10.25, 0.25, 0.9).run(mem, 0.0)  # 40 voxels
     Scene().box(CAR_ROWS, slice(30, 40), 20.25, 0.25, 0.9).run(mem, 0.1)  # 40 more: 30 of the old ones dropped
     assert mem.size == 50
@@ -181,6 +197,7 @@ def test_the_voxel_count_is_capped_keeping_the_newest():
     ("max_age", float("nan")), ("max_age", float("inf")), ("max_age", -1.0), ("max_age", 0.0), ("max_age", 1e4),
     ("voxel_size", float("nan")), ("voxel_size", float("inf")), ("voxel_size", -0.5), ("voxel_size", 0.0),
     ("share", float("nan")), ("share", -0.1), ("share", 0.0), ("share", 1.5), ("enabled", "yes"),
+    ("min_scans", 0), ("min_scans", 2.5), ("min_scans", float("nan")),
 ])
 def test_parameters_are_checked(field, bad):
     with pytest.raises(ConfigError, match=f"movers {field}"):

@@ -5,9 +5,10 @@ SemanticKITTI's labels (:mod:`ros2_mos.io.conventions`) keep it moving in every 
 remembers, in the world frame (the pipeline's pose), the voxels where non-ground pixels were labelled moving, with
 the time each was last labelled so. In a later scan a connected non-ground range-image segment
 (:func:`~ros2_mos.core.segments.connected_regions`) of which at least ``share`` of the pixels lie in voxels
-remembered within ``max_age`` seconds (or are moving now), and at least one in a remembered voxel, is labelled
-moving whole. Segments, not voxels, so that the ground and the static things a mover passed (a wall, a parked car:
-a small share of their segment lies in its trail) keep their label.
+remembered (labelled moving in at least ``min_scans`` scans, the last within ``max_age`` seconds; or moving now),
+and at least one in a remembered voxel, is labelled moving whole: a one-scan false positive is not remembered.
+Segments, not voxels, so that the ground and the static things a mover passed (a wall, a parked car: a small share
+of their segment lies in its trail) keep their label.
 
 Only the network's own moving pixels refresh the memory, never the ones this stage labelled: the memory of a stop
 ends ``max_age`` after the object was last seen moving, so a false positive of the network is remembered for at
@@ -51,6 +52,7 @@ class MoverMemory:
         self.max_voxels = int(max_voxels)
         self._keys = np.zeros(0, np.int64)  # sorted, unique
         self._times = np.zeros(0, np.float64)  # when each voxel was last labelled moving by the network
+        self._counts = np.zeros(0, np.int32)  # in how many scans it was, since it was last forgotten
 
     @property
     def size(self) -> int:
@@ -61,13 +63,16 @@ class MoverMemory:
         """Forget every mover (the pipeline's reset: another place, or the poses can no longer be trusted)."""
         self._keys = np.zeros(0, np.int64)
         self._times = np.zeros(0, np.float64)
+        self._counts = np.zeros(0, np.int32)
 
     def remembered(self, keys: np.ndarray, timestamp: float) -> np.ndarray:
-        """Which voxel ``keys`` were labelled moving within ``max_age`` seconds before ``timestamp``."""
+        """Which voxel ``keys`` were labelled moving in at least ``min_scans`` scans, the last within ``max_age``
+        seconds before ``timestamp``."""
         if not len(self._keys) or not len(keys):
             return np.zeros(len(keys), bool)
         at = np.minimum(np.searchsorted(self._keys, keys), len(self._keys) - 1)
-        return (self._keys[at] == keys) & (self._times[at] >= timestamp - self.config.max_age)
+        return ((self._keys[at] == keys) & (self._times[at] >= timestamp - self.config.max_age)
+                & (self._counts[at] >= self.config.min_scans))
 
     def apply(self, prob_image: np.ndarray, point_prob: np.ndarray, image: RangeImage, pose: np.ndarray,
               timestamp: float, threshold: float) -> tuple[np.ndarray, np.ndarray]:
@@ -107,18 +112,24 @@ class MoverMemory:
     def _forget(self, timestamp: float) -> None:
         keep = self._times >= timestamp - self.config.max_age
         if not keep.all():
-            self._keys, self._times = self._keys[keep], self._times[keep]
+            self._keys, self._times, self._counts = self._keys[keep], self._times[keep], self._counts[keep]
 
     def _insert(self, keys: np.ndarray, timestamp: float) -> None:
         """Mark ``keys`` moving at ``timestamp`` (the newest time: it replaces any older one)."""
         if not len(keys):
             return
         keys = np.unique(keys)
+        counts = np.ones(len(keys), np.int32)
+        if len(self._keys):  # the memory holds no expired voxel here (_forget ran): add to the counts
+            at = np.minimum(np.searchsorted(self._keys, keys), len(self._keys) - 1)
+            found = self._keys[at] == keys
+            counts[found] += np.minimum(self._counts[at[found]], 1 << 20)
         old = ~np.isin(self._keys, keys, assume_unique=True)
         all_keys = np.concatenate([self._keys[old], keys])
         all_times = np.concatenate([self._times[old], np.full(len(keys), float(timestamp))])
+        all_counts = np.concatenate([self._counts[old], counts])
         if len(all_keys) > self.max_voxels:  # keep the most recently moving ones
             newest = np.argpartition(-all_times, self.max_voxels - 1)[:self.max_voxels]
-            all_keys, all_times = all_keys[newest], all_times[newest]
+            all_keys, all_times, all_counts = all_keys[newest], all_times[newest], all_counts[newest]
         order = np.argsort(all_keys, kind="stable")
-        self._keys, self._times = all_keys[order], all_times[order]
+        self._keys, self._times, self._counts = all_keys[order], all_times[order], all_counts[order]
