@@ -12,6 +12,7 @@ from ros2_mos.cli import core_commands  # noqa: F401  (infer, eval)
 from ros2_mos.cli import train_commands  # noqa: F401
 from ros2_mos.cli import ros_commands  # noqa: F401
 from ros2_mos.cli import sim_commands  # noqa: F401
+from ros2_mos.cli import offline_commands  # noqa: F401  (autolabel)
 from ros2_mos.cli import apps_commands  # noqa: F401
 from ros2_mos.cli import demo_command  # noqa: F401
 from ros2_mos.cli import bench_command  # noqa: F401

@@ -1,0 +1,96 @@
+"""Issue 29: `ros2-mos autolabel` (offline, whole drive) against the simulator's labels under both conventions,
+beside the online model on the same drives.
+
+    python benchmarks/autolabel.py                        # the suite's held-out drives (SIM_SEEDS), HDL-64E
+    python benchmarks/autolabel.py --sensors hdl64 vlp16 vlp32c os1-64 os1-128
+    python benchmarks/autolabel.py --seeds validation     # the drives autolabel's settings were chosen on
+
+Drives are simulated into --data (reused); KISS-ICP poses for both. Prints a Markdown table: per drive the moving
+IoU of autolabel and of the online model under SemanticKITTI's and the instant convention, autolabel's precision
+and recall (semantickitti), and its speed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ros2_mos.core.config import MosConfig, sensor_preset
+from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.io.conventions import CONVENTIONS, label_dirs
+from ros2_mos.io.labels import to_moving_classes
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label
+from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, scan_labels
+from ros2_mos.offline.drives import FolderDrive
+from ros2_mos.scoring.metrics import MovingIoU
+from ros2_mos.scoring.suite import SIM_SEEDS, ensure_sim_sequences
+
+#: Drives autolabel's settings were tuned on (never the suite's).
+VALIDATION_SEEDS = {"easy": (9603,), "benchmark": (9601,), "traffic_jam": (9602,)}
+SHIPPED_MODEL = {"hdl64": "default"}
+
+
+def score_drive(folder: Path, sensor: str, online: bool) -> dict[str, float]:
+    seq = SemanticKittiSequence(folder)
+    dirs = label_dirs(folder)
+    gts = {c: [to_moving_classes(read_label(dirs[c] / f"{f.stem}.label")) for f in seq.scan_files] for c in CONVENTIONS}
+    labeler = AutoLabeler(sensor_preset(sensor), AutolabelConfig())
+    out: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as work:
+        start = time.perf_counter()
+        result = labeler.label(FolderDrive(folder), Path(work))
+        for c in CONVENTIONS:
+            score = MovingIoU()
+            for k in range(len(seq)):
+                score.update(scan_labels(labeler, result, Path(work), k, c), gts[c][k])
+            out[f"auto {c}"] = score.iou
+            if c == "semantickitti":
+                out["precision"] = score.tp / max(score.tp + score.fp, 1)
+                out["recall"] = score.tp / max(score.tp + score.fn, 1)
+        out["scans/s"] = len(seq) / (time.perf_counter() - start)
+    if online:
+        name = SHIPPED_MODEL.get(sensor, sensor)
+        model = Path(__file__).resolve().parents[1] / "ros2_mos" / "models" / f"{name}.onnx"
+        pipe = MosPipeline(MosConfig(model=str(model)))
+        scores = {c: MovingIoU() for c in CONVENTIONS}
+        for k, frame in enumerate(seq):
+            labels = pipe.process(frame.points, frame.remission, frame.timestamp).labels
+            for c in CONVENTIONS:
+                scores[c].update(labels, gts[c][k])
+        pipe.close()
+        for c in CONVENTIONS:
+            out[f"online {c}"] = scores[c].iou
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=Path, default=Path("data/autolabel"))
+    parser.add_argument("--sensors", nargs="+", default=["hdl64"])
+    parser.add_argument("--seeds", choices=("suite", "validation"), default="suite")
+    parser.add_argument("--scans", type=int, default=100)
+    parser.add_argument("--no-online", action="store_true", help="skip the online model's columns")
+    args = parser.parse_args()
+    seeds = SIM_SEEDS if args.seeds == "suite" else VALIDATION_SEEDS
+    print(f"autolabel benchmark, {time.strftime('%Y-%m-%d')}: {args.seeds} drives, {args.scans} scans, "
+          "KISS-ICP poses\n")
+    cols = ["auto semantickitti", "online semantickitti", "auto instant", "online instant", "precision", "recall",
+            "scans/s"]
+    print("| sensor | drive | " + " | ".join(cols) + " |")
+    print("|---|---|" + "---:|" * len(cols))
+    for sensor in args.sensors:
+        root = args.data if sensor == "hdl64" else args.data / sensor
+        for _, name, folder in ensure_sim_sequences(root, args.scans, seeds, print, sensor):
+            row = score_drive(folder, sensor, not args.no_online)
+            cells = [("–" if c not in row else f"{row[c]:.1f}" if c == "scans/s" else f"{100 * row[c]:.1f}")
+                     for c in cols]
+            print(f"| {sensor} | {name} | " + " | ".join(cells) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()

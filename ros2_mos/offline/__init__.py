@@ -1,0 +1,1 @@
+"""Offline labelling of whole drives: past and future scans together (``ros2-mos autolabel``)."""

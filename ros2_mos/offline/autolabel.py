@@ -1,0 +1,369 @@
+"""``ros2-mos autolabel``: moving / static labels for a whole drive, from its past and its future.
+
+The steps (:meth:`AutoLabeler.label`), each a stage built once:
+
+1. **Poses**: KISS-ICP over the drive (or the drive's own poses).
+2. **Objects and evidence**, in a window sliding over the drive: each scan's ground is removed and the rest cut into
+   object-sized segments (:mod:`~ros2_mos.offline.objects`); each object's points are checked against the range
+   images of scans before and after it (:mod:`~ros2_mos.offline.visibility`): where those scans saw through the
+   place the object occupies now, it moved. Per scan only the points' object ids go to disk, so memory stays
+   bounded by the window, not by the drive.
+3. **Tracks** through the drive (:mod:`~ros2_mos.offline.tracks`): a track with enough seen-through observations is a
+   mover.
+4. **Labels**: under SemanticKITTI's convention every point of a mover is moving in every scan in which it is seen
+   (also while it waits); under the instant convention only in the scans where nearby scans saw through it.
+"""
+
+from __future__ import annotations
+
+import csv
+import shutil
+import tempfile
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ros2_mos.core.config import OdometryConfig, SensorConfig
+from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.core.residuals import transform_columns
+from ros2_mos.core.sensor_check import mismatch_message
+from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_convention_file
+from ros2_mos.io.labels import to_submission
+from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
+from ros2_mos.offline.drives import Drive
+from ros2_mos.offline.objects import ObjectConfig, find_objects
+from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
+from ros2_mos.offline.visibility import SeenScan
+
+#: Fewer scans give no future or past to compare with.
+MIN_SCANS = 2
+
+
+@dataclass(frozen=True)
+class AutolabelConfig:
+    objects: ObjectConfig = field(default_factory=ObjectConfig)
+    tracks: TrackConfig = field(default_factory=TrackConfig)
+    #: Scans this far away (before or after) are checked for motion now (the instant convention) ...
+    near_offsets: tuple[int, ...] = (-5, -2, 2, 5)
+    #: ... and these too for motion at any time (SemanticKITTI's).
+    far_offsets: tuple[int, ...] = (-40, -20, -10, 10, 20, 40)
+    #: An observation of a mover moves now when this share of its points was seen through by a near scan ...
+    instant_seen_through: float = 0.3
+    #: ... or its track's centroid moved this fast (m/s) over the observations ``instant_span`` before and after it.
+    instant_speed: float = 0.6
+    instant_span: int = 3
+    #: An observation of a mover is moving (SemanticKITTI's convention) only within this many metres of where its
+    #: track was seen through: where it stopped is where it moved to, while a static pole or parked car that the
+    #: track ran into after losing the mover lies elsewhere.
+    support_radius: float = 1.5
+    use_poses: bool = False  # the drive's own poses instead of KISS-ICP
+
+    def __post_init__(self) -> None:
+        offsets = (*self.near_offsets, *self.far_offsets)
+        if not offsets or 0 in offsets:
+            raise ConfigError("autolabel: offsets must be non-zero scan offsets")
+        if not 0.0 < self.instant_seen_through <= 1.0:
+            raise ConfigError(f"autolabel: instant_seen_through must be in (0, 1], got {self.instant_seen_through}")
+
+    @property
+    def window(self) -> int:
+        return max(abs(o) for o in (*self.near_offsets, *self.far_offsets))
+
+
+@dataclass
+class AutolabelResult:
+    name: str
+    scans: int
+    poses: np.ndarray
+    stamps: np.ndarray  # (N,) seconds since the first scan
+    tracker: Tracker
+    movers: dict[int, str]  # track id -> the evidence that makes it a mover
+    points: list[int]  # per scan
+    moving_points: list[int] = field(default_factory=list)  # per scan, in the convention written
+    moving_now: set[tuple[int, int]] = field(default_factory=set)  # (scan, object) of movers moving in that scan
+    moving_ever: set[tuple[int, int]] = field(default_factory=set)  # (scan, object) of movers where they moved
+
+
+ProgressFn = Callable[[str, int], None]  # (stage, scans done in it)
+
+
+class AutoLabeler:
+    """Labels one drive at a time; the stages are built once."""
+
+    def __init__(self, sensor: SensorConfig, config: AutolabelConfig = AutolabelConfig(),
+                 odometry: OdometryConfig = OdometryConfig()) -> None:
+        self.sensor, self.config, self.odometry_config = sensor, config, odometry
+
+    # -- the steps -------------------------------------------------------------------------------------------
+    def label(self, drive: Drive, workdir: Path, progress: ProgressFn = lambda stage, n: None) -> AutolabelResult:
+        """Run steps 1-3 over ``drive``; per-scan object ids are kept in ``workdir`` for :meth:`write`."""
+        n = len(drive)
+        if n < MIN_SCANS:
+            raise DatasetError(f"{drive.name}: {n} scan(s); autolabel needs at least {MIN_SCANS} (past and future)")
+        poses, stamps, sizes = self._poses(drive, progress)
+        tracker = Tracker(self.config.tracks)
+        self._objects_and_evidence(drive, poses, stamps, tracker, workdir, progress)
+        result = AutolabelResult(drive.name, n, poses, stamps, tracker, tracker.movers(), sizes)
+        result.moving_ever = self._moving_ever(result)
+        result.moving_now = self._moving_now(result) & result.moving_ever  # moving now: where it moved at all
+        return result
+
+    def _poses(self, drive: Drive, progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int]]:
+        from ros2_mos.core.odometry import KissIcpOdometry
+
+        use_own = self.config.use_poses
+        if use_own and drive.poses is None:
+            raise DatasetError(f"{drive.name}: --use-poses, but the drive has no poses.txt")
+        odometry = None if use_own else KissIcpOdometry(self.odometry_config)
+        poses, stamps, sizes = [], [], []
+        for scan in drive:
+            if len(scan.points) == 0:
+                raise DatasetError(f"{drive.name} scan {scan.index}: no finite points")
+            problem = mismatch_message(scan.points, self.sensor) if scan.index % 10 == 0 else None
+            if problem:
+                raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")
+            if odometry is not None:
+                poses.append(odometry.estimate(scan.points))
+                odometry.update_map()
+            stamps.append(scan.stamp)
+            sizes.append(len(scan.points))
+            progress("poses", 1)
+        out = drive.poses[: len(stamps)] if use_own else np.asarray(poses)
+        return np.asarray(out, np.float64), np.asarray(stamps), sizes
+
+    def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, tracker: Tracker,
+                              workdir: Path, progress: ProgressFn) -> None:
+        window = self.config.window
+        n = len(poses)
+        seen: dict[int, SeenScan] = {}
+        pending: deque[tuple[int, np.ndarray]] = deque()
+        last_stamp: float | None = None
+        scans = iter(drive)
+        loaded = 0
+        for k in range(n):
+            while loaded < min(n, k + window + 1):  # the window ahead of scan k
+                scan = next(scans)
+                seen[scan.index] = SeenScan(scan.points, poses[scan.index], self.sensor)
+                pending.append((scan.index, scan.points))
+                loaded += 1
+            for old in [i for i in seen if i < k - window]:
+                del seen[old]
+            index, points = pending.popleft()
+            assert index == k
+            observations = self._observe(k, points, poses[k], seen)
+            tracker.add_scan(k, float(stamps[k]), last_stamp, observations[1])
+            last_stamp = float(stamps[k])
+            np.save(workdir / f"{k:06d}.npy", observations[0])
+            progress("objects", 1)
+
+    def _observe(self, k: int, points: np.ndarray, pose: np.ndarray,
+                 seen: dict[int, SeenScan]) -> tuple[np.ndarray, list[Observation]]:
+        """Scan k's objects (per point ids) and one observation per object."""
+        cfg = self.config
+        found = find_objects(points, cfg.objects)
+        on_object = np.flatnonzero((found.point_object >= 0) & ~found.attached)
+        obj = found.point_object[on_object]
+        counts = found.counts
+        world = np.ascontiguousarray(transform_columns(points[on_object], pose).T)
+        near = np.zeros(found.n_objects)
+        far = np.zeros(found.n_objects)
+        for offsets, best in ((cfg.near_offsets, near), (cfg.far_offsets, far)):
+            for o in offsets:
+                other = seen.get(k + o)
+                if other is None:
+                    continue
+                hits = np.bincount(obj[other.seen_through(world)], minlength=found.n_objects) / counts
+                np.maximum(best, hits, out=best)
+        np.maximum(far, near, out=far)
+        sums = np.stack([np.bincount(obj, world[:, i], found.n_objects) for i in range(3)], axis=1)
+        centroids = sums / counts[:, None]
+        lo = np.full((found.n_objects, 3), np.inf)
+        hi = np.full((found.n_objects, 3), -np.inf)
+        for i in range(3):
+            np.minimum.at(lo[:, i], obj, world[:, i])
+            np.maximum.at(hi[:, i], obj, world[:, i])
+        observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]))
+                        for j in range(found.n_objects)]
+        return found.point_object, observations
+
+    def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
+        """The observations of movers that move in their own scan (the instant convention)."""
+        cfg = self.config
+        out = set()
+        for tid in result.movers:
+            obs = result.tracker.tracks[tid].observations
+            c = np.array([o.centroid[:2] for o in obs])
+            t = result.stamps[[o.scan for o in obs]]
+            m = len(obs)
+            before = np.maximum(np.arange(m) - cfg.instant_span, 0)
+            after = np.minimum(np.arange(m) + cfg.instant_span, m - 1)
+            dt = np.maximum(t[after] - t[before], 1e-3)
+            speed = np.where(after > before, np.linalg.norm(c[after] - c[before], axis=1) / dt, 0.0)
+            for i, o in enumerate(obs):
+                if o.near >= cfg.instant_seen_through or speed[i] >= cfg.instant_speed:
+                    out.add((o.scan, o.obj))
+        return out
+
+    def _moving_ever(self, result: AutolabelResult) -> set[tuple[int, int]]:
+        """The observations of movers that lie where their track was seen through (SemanticKITTI's convention)."""
+        cfg = self.config
+        out = set()
+        for tid in result.movers:
+            obs = result.tracker.tracks[tid].observations
+            c = np.array([o.centroid[:2] for o in obs])
+            evidence = c[[o.far >= cfg.tracks.seen_through for o in obs]]
+            d2 = ((c[:, None, :] - evidence[None, :, :]) ** 2).sum(axis=-1).min(axis=1)
+            out.update((o.scan, o.obj) for o, near in zip(obs, d2 <= cfg.support_radius**2) if near)
+        return out
+
+    # -- output ----------------------------------------------------------------------------------------------
+    def moving_objects(self, result: AutolabelResult, scan: int, n_objects: int, convention: str) -> np.ndarray:
+        """(n_objects,) bool: which of scan ``scan``'s objects are moving under ``convention``."""
+        moving = np.zeros(n_objects, bool)
+        for j in range(n_objects):
+            if convention == SEMANTICKITTI:
+                moving[j] = (scan, j) in result.moving_ever
+            else:
+                moving[j] = (scan, j) in result.moving_now
+        return moving
+
+
+def scan_labels(labeler: AutoLabeler, result: AutolabelResult, workdir: Path, scan: int,
+                convention: str) -> np.ndarray:
+    """Per point of ``scan``: moving?"""
+    point_object = np.load(workdir / f"{scan:06d}.npy")
+    n_objects = int(point_object.max()) + 1 if len(point_object) else 0
+    moving_obj = labeler.moving_objects(result, scan, n_objects, convention)
+    return (point_object >= 0) & moving_obj[np.maximum(point_object, 0)] if n_objects else np.zeros(
+        len(point_object), bool)
+
+
+def autolabel_drive(drive: Drive, out_root: str | Path, sensor: SensorConfig, convention: str = SEMANTICKITTI,
+                    config: AutolabelConfig = AutolabelConfig(), png: bool = False,
+                    progress: ProgressFn = lambda stage, n: None) -> tuple[Path, AutolabelResult]:
+    """Label ``drive`` and write ``OUT_ROOT/sequences/<name>/``: ``predictions/*.label`` (251 moving / 9 static in
+    ``convention``), ``poses.txt``, ``times.txt``, ``label_convention.txt``, ``objects.csv`` (the movers) and, with
+    ``png``, ``movers.png``.
+
+    Everything is written under a temporary name and renamed when complete: an error leaves nothing behind.
+    """
+    check_convention(convention)
+    final = Path(out_root) / "sequences" / drive.name
+    if final.exists():
+        raise DatasetError(f"{final} already exists; remove it or choose another --out")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    partial = Path(tempfile.mkdtemp(prefix=f".{drive.name}.partial-", dir=final.parent))
+    try:
+        workdir = partial / "objects"
+        workdir.mkdir()
+        labeler = AutoLabeler(sensor, config)
+        result = labeler.label(drive, workdir, progress)
+        names = getattr(drive, "scan_names", [f"{i:06d}" for i in range(result.scans)])
+        bev = BirdsEye() if png else None
+        scans = iter(drive) if png else None
+        for k in range(result.scans):
+            moving = scan_labels(labeler, result, workdir, k, convention)
+            write_label(partial / "predictions" / f"{names[k]}.label", to_submission(moving))
+            result.moving_points.append(int(moving.sum()))
+            if bev is not None and scans is not None:
+                tracks = track_ids(result, workdir, k)
+                bev.add(next(scans).points, result.poses[k], tracks if convention == SEMANTICKITTI
+                        else np.where(moving, tracks, -1), k)
+            progress("labels", 1)
+        shutil.rmtree(workdir)
+        write_poses(partial / "poses.txt", result.poses)
+        write_times(partial / "times.txt", result.stamps)
+        write_convention_file(partial, convention)
+        write_objects_table(partial / "objects.csv", result)
+        if bev is not None:
+            bev.write(partial / "movers.png", f"{drive.name}: {len(result.movers)} movers ({convention})")
+        partial.rename(final)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    return final, result
+
+
+def track_ids(result: AutolabelResult, workdir: Path, scan: int) -> np.ndarray:
+    """Per point of ``scan``: the id of the mover it belongs to, -1 for the rest."""
+    point_object = np.load(workdir / f"{scan:06d}.npy")
+    n_objects = int(point_object.max()) + 1 if len(point_object) else 0
+    ids = np.full(n_objects + 1, -1, np.int64)
+    for j in range(n_objects):
+        tid = result.tracker.track_of.get((scan, j))
+        if tid is not None and tid in result.movers:
+            ids[j] = tid
+    return ids[np.where(point_object >= 0, point_object, n_objects)]
+
+
+def write_objects_table(path: Path, result: AutolabelResult) -> None:
+    """One row per mover: id, first and last scan, observations, points, path length, peak speed, median size, and
+    the evidence that made it a mover."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["id", "first_scan", "last_scan", "scans", "points", "path_m", "peak_speed_mps",
+                    "length_m", "width_m", "height_m", "evidence"])
+        for tid in sorted(result.movers):
+            t = result.tracker.tracks[tid]
+            size = np.median(np.array([o.size for o in t.observations]), axis=0)
+            length, width = max(size[0], size[1]), min(size[0], size[1])
+            w.writerow([tid, t.observations[0].scan, t.last.scan, len(t.observations),
+                        sum(o.points for o in t.observations), f"{t.path_length():.1f}",
+                        f"{t.peak_speed(result.stamps):.1f}", f"{length:.1f}", f"{width:.1f}", f"{size[2]:.1f}",
+                        result.movers[tid]])
+
+
+class BirdsEye:
+    """A bird's-eye picture of a drive: static points grey (thinned), movers coloured by track, the path black."""
+
+    STATIC_EVERY = 5  # scans
+    STATIC_STRIDE = 7  # points
+
+    def __init__(self) -> None:
+        self.static: list[np.ndarray] = []
+        self.moving: list[np.ndarray] = []
+        self.tracks: list[np.ndarray] = []
+        self.path: list[np.ndarray] = []
+
+    def add(self, points: np.ndarray, pose: np.ndarray, tracks: np.ndarray, k: int) -> None:
+        world = transform_columns(points, pose)[:2].T
+        self.path.append(np.asarray(pose)[:2, 3])
+        mover = tracks >= 0
+        self.moving.append(world[mover])
+        self.tracks.append(tracks[mover])
+        if k % self.STATIC_EVERY == 0:
+            self.static.append(world[~mover][:: self.STATIC_STRIDE])
+
+    def write(self, path: Path, title: str, max_pixels: int = 1600) -> None:
+        from PIL import Image, ImageDraw
+
+        static = np.vstack(self.static) if self.static else np.zeros((0, 2))
+        moving = np.vstack(self.moving) if self.moving else np.zeros((0, 2))
+        tracks = np.concatenate(self.tracks) if self.tracks else np.zeros(0, np.int64)
+        route = np.array(self.path)
+        lo = route.min(axis=0) - 40.0
+        hi = route.max(axis=0) + 40.0
+        res = max(float((hi - lo).max()) / max_pixels, 0.1)
+        w, h = (int(np.ceil(v)) + 1 for v in (hi - lo) / res)
+        img = np.full((h + 24, w, 3), 255, np.uint8)
+
+        def pix(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            col = ((xy[:, 0] - lo[0]) / res).astype(np.int64)
+            row = 24 + (h - 1 - (xy[:, 1] - lo[1]) / res).astype(np.int64)
+            ok = (col >= 0) & (col < w) & (row >= 24) & (row < h + 24)
+            return row[ok], col[ok], ok
+
+        r, c, _ = pix(static)
+        img[r, c] = (175, 175, 175)
+        r, c, _ = pix(route)
+        img[r, c] = (0, 0, 0)
+        r, c, ok = pix(moving)
+        palette = np.array([(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180),
+                            (70, 200, 220), (240, 50, 230), (128, 128, 0), (0, 0, 128), (170, 110, 40)], np.uint8)
+        img[r, c] = palette[tracks[ok] % len(palette)]
+        image = Image.fromarray(img)
+        ImageDraw.Draw(image).text((6, 6), f"{title}; {res:.2f} m/px", fill=(0, 0, 0))
+        image.save(path, format="PNG")

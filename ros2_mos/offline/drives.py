@@ -1,0 +1,102 @@
+"""A drive to label offline: the scans of a SemanticKITTI sequence folder or of a bag's PointCloud2 topic.
+
+Both behind one interface (:class:`Drive`): its name, its length, and its scans in order, each read anew when asked
+for, so that a pass over a 2,000-scan drive holds one scan at a time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Protocol
+
+import numpy as np
+
+from ros2_mos.core.errors import DatasetError
+
+
+@dataclass
+class DriveScan:
+    index: int
+    stamp: float  # seconds since the drive's first scan
+    points: np.ndarray  # (N, 3) float32, finite
+    intensity: np.ndarray  # (N,) float32
+
+
+class Drive(Protocol):
+    name: str
+    poses: np.ndarray | None  # (N, 4, 4) LiDAR poses where the drive has them
+
+    def __len__(self) -> int: ...
+
+    def __iter__(self) -> Iterator[DriveScan]: ...
+
+
+def _finite(points: np.ndarray, intensity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    keep = np.isfinite(points).all(axis=1) & (np.einsum("ij,ij->i", points, points) > 0)
+    return np.ascontiguousarray(points[keep], np.float32), np.ascontiguousarray(intensity[keep], np.float32)
+
+
+class FolderDrive:
+    """A SemanticKITTI sequence folder (``velodyne/*.bin``; poses and times used where present)."""
+
+    def __init__(self, root: str | Path) -> None:
+        from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+
+        self.sequence = SemanticKittiSequence(root)
+        self.name = self.sequence.name
+        self.poses = self.sequence.poses[: len(self.sequence)] if self.sequence.poses is not None else None
+        self.scan_names = [f.stem for f in self.sequence.scan_files]
+
+    def __len__(self) -> int:
+        return len(self.sequence)
+
+    def __iter__(self) -> Iterator[DriveScan]:
+        from ros2_mos.io.semantic_kitti import read_scan
+
+        t0 = float(self.sequence.times[0])
+        for i, path in enumerate(self.sequence.scan_files):
+            scan = read_scan(path)
+            points, intensity = _finite(scan[:, :3], scan[:, 3])
+            yield DriveScan(i, float(self.sequence.times[i]) - t0, points, intensity)
+
+
+class BagDrive:
+    """The PointCloud2 messages of one topic of a rosbag2 bag (the only one unless ``topic`` is given)."""
+
+    def __init__(self, path: str | Path, topic: str | None = None) -> None:
+        from ros2_mos.io.bags import iter_pointclouds, pointcloud_topic
+
+        self.path = Path(path)
+        self.topic = pointcloud_topic(self.path, topic)  # raises when the bag has none
+        self.name = self.path.name
+        self.poses = None
+        self.stamps = [stamp for stamp, _ in iter_pointclouds(self.path, self.topic)]
+        self.scan_names = [f"{i:06d}" for i in range(len(self.stamps))]
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def __iter__(self) -> Iterator[DriveScan]:
+        from ros2_mos.io.bags import iter_pointclouds
+        from ros2_mos.io.pointcloud2 import decode_xyz_intensity
+
+        t0 = self.stamps[0] if self.stamps else 0
+        for i, (stamp, msg) in enumerate(iter_pointclouds(self.path, self.topic)):
+            points, intensity, _ = decode_xyz_intensity(msg)
+            points, intensity = _finite(points, intensity)
+            yield DriveScan(i, (stamp - t0) * 1e-9, points, intensity)
+
+
+def open_drive(path: str | Path, topic: str | None = None) -> FolderDrive | BagDrive:
+    """A sequence folder (with ``velodyne/``) or a bag folder/file (``metadata.yaml``, ``.mcap``, ``.db3``)."""
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"drive not found: {path}")
+    if (path / "velodyne").is_dir():
+        return FolderDrive(path)
+    is_bag = (path / "metadata.yaml").is_file() or path.suffix in (".mcap", ".db3") or any(
+        path.glob("*.mcap")) or any(path.glob("*.db3"))
+    if not is_bag:
+        raise DatasetError(f"{path}: neither a SemanticKITTI sequence folder (velodyne/*.bin) nor a rosbag2 bag")
+    return BagDrive(path, topic)

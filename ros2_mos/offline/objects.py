@@ -1,0 +1,158 @@
+"""One scan's object candidates: ground removed from a local height grid, the rest cut into connected voxel clusters.
+
+The ground under each point is the lowest point within ``ground_radius`` cells of a ``ground_cell``-metre grid, so
+that slopes and curbs stay ground and a car's body does not; points more than ``ground_height`` above it are
+candidates. Candidates are grouped into clusters of 26-connected occupied voxels (``voxel`` metres): a car close to
+the sensor stays one cluster (in a range image its roof and sides break into bands at grazing angles), two cars
+queueing a metre apart stay two, and a canopy above a car is a cluster of its own when there is a free voxel
+between. A cluster is an *object* when it is object-sized: few enough metres long and high, standing on the ground,
+with enough points. The object's lowest points (wheels, feet), within ``ground_height`` of the ground, are attached
+to it where they stand under it (same top-view cell of ``attach_cell`` metres): they take its label but no part in
+its evidence. A cluster longer than ``max_length`` (cars queueing bumper to bumper) is cut again with half-size
+voxels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ros2_mos.core.segments import _union_find
+
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    ground_cell: float = 1.0  # m
+    ground_radius: int = 2  # cells
+    ground_height: float = 0.2  # m above the local ground
+    max_range: float = 60.0  # m: farther points are too sparse to cut into objects
+    voxel: float = 0.4  # m
+    min_points: int = 8
+    max_length: float = 22.0  # m: a bus or a truck alongside still fits
+    max_height: float = 4.5  # m
+    max_bottom: float = 1.5  # m: an object's lowest point is this close to the ground
+    attach_above: float = 0.08  # m: low points higher than this above the ground under an object are attached to it
+    attach_cell: float = 0.2  # m: ... when they share a top-view cell of this size with one of its points
+
+
+@dataclass
+class ScanObjects:
+    """Per point its object (-1: ground, background or too far); per object its point count."""
+
+    point_object: np.ndarray  # (N,) int32, attached low points included
+    counts: np.ndarray  # (K,) int64, the object's own points (not the attached ones)
+    attached: np.ndarray  # (N,) bool: a low point that takes its object's label
+    height_above_ground: np.ndarray  # (N,) float32
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.counts)
+
+
+def local_ground(points: np.ndarray, cell: float, radius: int) -> np.ndarray:
+    """Per point the height of the lowest point within ``radius`` cells of its grid cell."""
+    ij = np.floor(points[:, :2] / cell).astype(np.int64)
+    ij -= ij.min(axis=0)
+    shape = tuple(int(v) + 1 for v in ij.max(axis=0))
+    lowest = np.full(shape, np.inf, np.float32)
+    np.minimum.at(lowest, (ij[:, 0], ij[:, 1]), points[:, 2].astype(np.float32))
+    padded = np.full((shape[0] + 2 * radius, shape[1] + 2 * radius), np.inf, np.float32)
+    padded[radius: radius + shape[0], radius: radius + shape[1]] = lowest
+    ground = lowest.copy()
+    for di in range(2 * radius + 1):
+        for dj in range(2 * radius + 1):
+            np.minimum(ground, padded[di: di + shape[0], dj: dj + shape[1]], out=ground)
+    return ground[ij[:, 0], ij[:, 1]]
+
+
+#: Half of the 26 neighbour offsets of a voxel: each edge is found once.
+_HALF_NEIGHBOURS = [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
+                    if (dx, dy, dz) > (0, 0, 0)]
+
+
+def voxel_clusters(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Per point, the id (0..K-1) of its cluster of 26-connected occupied voxels."""
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    ijk = np.floor(points / voxel).astype(np.int64)
+    ijk -= ijk.min(axis=0) - 1  # a free border: neighbours never wrap
+    dims = ijk.max(axis=0) + 2
+    keys = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    cells, point_cell = np.unique(keys, return_inverse=True)
+    a, b = [], []
+    for dx, dy, dz in _HALF_NEIGHBOURS:
+        shifted = cells + (dx * dims[1] + dy) * dims[2] + dz
+        at = np.searchsorted(cells, shifted)
+        at = np.minimum(at, len(cells) - 1)
+        hit = np.flatnonzero(cells[at] == shifted)
+        a.append(hit)
+        b.append(at[hit])
+    roots = _union_find(len(cells), np.concatenate(a), np.concatenate(b))
+    _, cluster = np.unique(roots, return_inverse=True)
+    return cluster[point_cell.reshape(-1)]
+
+
+def split_long_clusters(points: np.ndarray, cluster: np.ndarray, config: ObjectConfig) -> np.ndarray:
+    """Clusters longer than ``max_length`` (cars queueing bumper to bumper, linked through one voxel) cut again
+    with voxels half the size; returns compact ids."""
+    k = int(cluster.max()) + 1 if len(cluster) else 0
+    lo = np.full((k, 2), np.inf, np.float32)
+    hi = np.full((k, 2), -np.inf, np.float32)
+    for axis in range(2):
+        np.minimum.at(lo[:, axis], cluster, points[:, axis])
+        np.maximum.at(hi[:, axis], cluster, points[:, axis])
+    long = np.flatnonzero(np.hypot(*(hi - lo).T) > config.max_length)
+    if len(long) == 0:
+        return cluster
+    out = cluster.astype(np.int64).copy()
+    inside = np.flatnonzero(np.isin(cluster, long))
+    out[inside] = k + voxel_clusters(points[inside], config.voxel / 2)
+    return np.unique(out, return_inverse=True)[1].reshape(-1)
+
+
+def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig()) -> ScanObjects:
+    """Ground, clusters and object-sized clusters of one scan (sensor frame, finite points)."""
+    n = len(points)
+    height = (points[:, 2] - local_ground(points, config.ground_cell, config.ground_radius)).astype(np.float32)
+    candidate = np.flatnonzero((height > config.ground_height)
+                               & (np.einsum("ij,ij->i", points, points) < config.max_range**2))
+    cluster = voxel_clusters(points[candidate], config.voxel)
+    cluster = split_long_clusters(points[candidate], cluster, config)
+    k = int(cluster.max()) + 1 if len(cluster) else 0
+    counts = np.bincount(cluster, minlength=k)
+    pts = points[candidate]
+    lo = np.full((k, 3), np.inf, np.float32)
+    hi = np.full((k, 3), -np.inf, np.float32)
+    for axis in range(3):
+        np.minimum.at(lo[:, axis], cluster, pts[:, axis])
+        np.maximum.at(hi[:, axis], cluster, pts[:, axis])
+    bottom = np.full(k, np.inf, np.float32)
+    np.minimum.at(bottom, cluster, height[candidate])
+    length = np.hypot(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
+    good = ((counts >= config.min_points) & (length <= config.max_length) & (hi[:, 2] - lo[:, 2] <= config.max_height)
+            & (bottom <= config.max_bottom))
+    new_id = np.full(k, -1, np.int32)
+    new_id[good] = np.arange(int(good.sum()), dtype=np.int32)
+    point_object = np.full(n, -1, np.int32)
+    point_object[candidate] = new_id[cluster]
+    attached = attach_low_points(points, height, point_object, config)
+    return ScanObjects(point_object, counts[good], attached, height)
+
+
+def attach_low_points(points: np.ndarray, height: np.ndarray, point_object: np.ndarray,
+                      config: ObjectConfig) -> np.ndarray:
+    """Give the low points under an object (same top-view ``voxel`` cell) that object's id; returns which were."""
+    on_object = np.flatnonzero(point_object >= 0)
+    low = np.flatnonzero((height > config.attach_above) & (height <= config.ground_height))
+    attached = np.zeros(len(points), bool)
+    if len(on_object) == 0 or len(low) == 0:
+        return attached
+    ij = np.floor(points[:, :2] / config.attach_cell).astype(np.int64)
+    keys = ij[:, 0] * 1_000_003 + ij[:, 1]
+    cells, first = np.unique(keys[on_object], return_index=True)
+    at = np.minimum(np.searchsorted(cells, keys[low]), len(cells) - 1)
+    hit = cells[at] == keys[low]
+    point_object[low[hit]] = point_object[on_object[first[at[hit]]]]
+    attached[low[hit]] = True
+    return attached

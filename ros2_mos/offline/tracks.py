@@ -1,0 +1,133 @@
+"""Objects followed through the drive (world frame), and which of them move.
+
+Each scan's objects are observations: centroid, point count, extent, and how much of each was seen through by
+nearby scans (``near``: a few scans away, motion now) and by any scan of the window (``far``). Observations are
+chained into tracks by nearest centroid to a constant-velocity prediction within a gate; a track ends after
+``max_missed`` scans without an observation.
+
+A track is a *mover* (:meth:`Tracker.movers`) when enough of its observations were seen through: the place where it
+stood was empty at another time, so it moved while the sensor watched, and under SemanticKITTI's convention every
+scan of it is moving, also those where it waits. A parked car passed closely keeps its place: its points are never
+seen through, however much its visible centroid slides as the view changes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    gate: float = 1.5  # m around the predicted centroid
+    gate_per_speed: float = 0.15  # s: the gate grows with the track's speed (m/s) times this
+    max_missed: int = 5  # scans
+    max_speed: float = 40.0  # m/s: faster velocity estimates are clipped
+    seen_through: float = 0.3  # share of an observation's points seen through that makes it moving evidence
+    min_moving_observations: int = 2
+    moving_share: float = 0.2  # ... and at least this share of the track's observations
+
+
+@dataclass
+class Observation:
+    scan: int
+    obj: int
+    centroid: np.ndarray
+    points: int
+    lo: np.ndarray  # (3,) world bounding box
+    hi: np.ndarray
+    near: float
+    far: float
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.hi - self.lo
+
+
+@dataclass
+class Track:
+    id: int
+    observations: list[Observation] = field(default_factory=list)
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    @property
+    def last(self) -> Observation:
+        return self.observations[-1]
+
+    def path_length(self) -> float:
+        c = np.array([o.centroid[:2] for o in self.observations])
+        return float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) if len(c) > 1 else 0.0
+
+    def peak_speed(self, stamps: np.ndarray, window: int = 5) -> float:
+        """The largest centroid displacement over ``window`` observations, per second (a robust peak)."""
+        obs = self.observations
+        if len(obs) <= window:
+            if len(obs) < 2:
+                return 0.0
+            window = len(obs) - 1
+        c = np.array([o.centroid[:2] for o in obs])
+        t = stamps[[o.scan for o in obs]]
+        dt = np.maximum(t[window:] - t[:-window], 1e-3)
+        return float((np.linalg.norm(c[window:] - c[:-window], axis=1) / dt).max())
+
+
+class Tracker:
+    """Greedy nearest-neighbour association of each scan's observations to the live tracks."""
+
+    def __init__(self, config: TrackConfig = TrackConfig()) -> None:
+        self.config = config
+        self.tracks: list[Track] = []
+        self._live: list[Track] = []
+        #: (scan, object) -> track id
+        self.track_of: dict[tuple[int, int], int] = {}
+
+    def add_scan(self, scan: int, stamp: float, last_stamp: float | None, observations: list[Observation]) -> None:
+        cfg = self.config
+        dt = 0.1 if last_stamp is None else max(stamp - last_stamp, 1e-3)
+        live = [t for t in self._live if scan - t.last.scan <= cfg.max_missed]
+        matched_obs: set[int] = set()
+        if live and observations:
+            predicted = np.array([t.last.centroid[:2] + t.velocity * (scan - t.last.scan) * dt for t in live])
+            gates = np.array([cfg.gate + cfg.gate_per_speed * float(np.linalg.norm(t.velocity)) for t in live])
+            cents = np.array([o.centroid[:2] for o in observations])
+            dist = np.linalg.norm(predicted[:, None, :] - cents[None, :, :], axis=-1)
+            dist[dist > gates[:, None]] = np.inf
+            used_tracks: set[int] = set()
+            for flat in np.argsort(dist, axis=None):
+                ti, oi = divmod(int(flat), len(observations))
+                if not np.isfinite(dist[ti, oi]):
+                    break
+                if ti in used_tracks or oi in matched_obs:
+                    continue
+                used_tracks.add(ti)
+                matched_obs.add(oi)
+                track, obs = live[ti], observations[oi]
+                gap = max(obs.scan - track.last.scan, 1) * dt
+                v = (obs.centroid[:2] - track.last.centroid[:2]) / gap
+                speed = float(np.linalg.norm(v))
+                if speed > cfg.max_speed:
+                    v *= cfg.max_speed / speed
+                track.velocity = 0.5 * track.velocity + 0.5 * v
+                self._append(track, obs)
+        for oi, obs in enumerate(observations):
+            if oi not in matched_obs:
+                track = Track(len(self.tracks))
+                self.tracks.append(track)
+                live.append(track)
+                self._append(track, obs)
+        self._live = live
+
+    def _append(self, track: Track, obs: Observation) -> None:
+        track.observations.append(obs)
+        self.track_of[(obs.scan, obs.obj)] = track.id
+
+    def seen_moving(self, track: Track) -> bool:
+        """Enough of the track's observations were seen through."""
+        cfg = self.config
+        evidence = sum(o.far >= cfg.seen_through for o in track.observations)
+        return evidence >= cfg.min_moving_observations and evidence >= cfg.moving_share * len(track.observations)
+
+    def movers(self) -> dict[int, str]:
+        """{track id: the evidence that makes it a mover} ('seen through')."""
+        return {t.id: "seen through" for t in self.tracks if self.seen_moving(t)}

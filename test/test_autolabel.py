@@ -1,0 +1,228 @@
+"""The offline labeller (``ros2-mos autolabel``) on hand-made drives with hand-known answers, its stages' math, and
+its command end to end on a simulated drive."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from drive_scenes import SENSOR, WALL, Mover, write_drive
+from typer.testing import CliRunner
+
+from ros2_mos.cli import app
+from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.io.labels import instance_ids, semantic_ids
+from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, scan_labels
+from ros2_mos.offline.drives import FolderDrive
+from ros2_mos.offline.objects import find_objects, local_ground, voxel_clusters
+from ros2_mos.offline.visibility import neighbourhood_min
+
+runner = CliRunner()
+WALLS = [(-40, 80, 12, 13), (-40, 80, -13, -12)]
+
+
+def label_scene(tmp_path: Path, n: int, ego, movers, walls=WALLS):
+    folder = write_drive(tmp_path, n, ego, movers, walls)
+    labeler = AutoLabeler(SENSOR, AutolabelConfig(use_poses=True))
+    work = tmp_path / "work"
+    work.mkdir()
+    result = labeler.label(FolderDrive(folder), work)
+    seq = SemanticKittiSequence(folder)
+
+    def share(k: int, inst: int, convention: str) -> float:
+        """The share of the object's points in scan k labelled moving."""
+        mine = instance_ids(seq[k].labels) == inst
+        return float(scan_labels(labeler, result, work, k, convention)[mine].mean())
+
+    def others(k: int, inst: int, convention: str) -> int:
+        """Points of scan k not on the object and labelled moving."""
+        mine = instance_ids(seq[k].labels) == inst
+        return int(scan_labels(labeler, result, work, k, convention)[~mine].sum())
+
+    return seq, share, others, (labeler, result, work)
+
+
+# -- stages -----------------------------------------------------------------------------------------------------
+def test_local_ground_is_the_lowest_point_nearby():
+    pts = np.array([[0.2, 0.2, 0.0], [0.7, 0.3, 1.5], [5.5, 0.5, 0.3], [5.2, 0.4, 2.0]], np.float32)
+    ground = local_ground(pts, cell=1.0, radius=1)
+    assert ground.tolist() == pytest.approx([0.0, 0.0, 0.3, 0.3])  # cells 0 and 5 are 5 apart: separate
+
+
+def test_voxel_clusters_link_26_neighbours_and_split_at_a_free_voxel():
+    a = np.array([[0.1, 0.1, 0.1], [0.5, 0.5, 0.5], [0.9, 0.1, 0.9]])  # diagonal neighbours of 0.4 m voxels
+    b = np.array([[2.1, 0.1, 0.1], [2.5, 0.1, 0.1]])  # one free voxel (x 1.2-1.6... 2.0) away
+    ids = voxel_clusters(np.vstack([a, b]), 0.4)
+    assert len(set(ids[:3])) == 1 and len(set(ids[3:])) == 1 and ids[0] != ids[3]
+
+
+def test_neighbourhood_min_takes_rows_pm1_and_columns_pm2_with_wrap():
+    img = np.full((3, 8), 10.0, np.float32)
+    img[1, 0] = 2.0
+    out = neighbourhood_min(img, columns=2)
+    assert out[0, 7] == 2.0 and out[2, 2] == 2.0 and out[1, 3] == 10.0 and out[1, 6] == 2.0
+
+
+def test_objects_keep_a_car_and_drop_a_building_and_the_ground():
+    rng = np.random.default_rng(0)
+    ground = np.column_stack([rng.uniform(-30, 30, 4000), rng.uniform(-30, 30, 4000), np.zeros(4000)])
+    car = np.column_stack([rng.uniform(5, 9.5, 800), rng.uniform(2, 3.8, 800), rng.uniform(0.3, 1.5, 800)])
+    wheels = np.column_stack([rng.uniform(5, 9.5, 50), rng.uniform(2, 3.8, 50), np.full(50, 0.15)])
+    building = np.column_stack([rng.uniform(-25, 25, 20000), np.full(20000, -20.0), rng.uniform(0, 12, 20000)])
+    pts = np.vstack([ground, car, wheels, building]).astype(np.float32)
+    found = find_objects(pts)
+    car_ids = set(found.point_object[4000:4800].tolist())
+    assert len(car_ids) == 1 and car_ids != {-1}
+    assert (found.point_object[:4000] == -1).mean() > 0.99  # ground
+    assert (found.point_object[4800:4850] == next(iter(car_ids))).mean() > 0.9  # wheels attached under the car
+    assert found.attached[4800:4850].mean() > 0.9 and not found.attached[4000:4800].any()
+    assert (found.point_object[4850:] == -1).all()  # 12 m high: not an object
+
+
+def test_config_is_checked():
+    for bad in ({"near_offsets": (0,)}, {"instant_seen_through": 0.0}, {"instant_seen_through": float("nan")}):
+        with pytest.raises(ConfigError):
+            AutolabelConfig(**bad)
+
+
+# -- hand-made drives -------------------------------------------------------------------------------------------
+def test_a_car_that_waits_then_drives_is_moving_throughout_in_semantickitti_and_only_while_driving_in_instant(
+        tmp_path):
+    car = Mover((4.5, 1.8, 1.5), lambda k: (12.0 + max(0, k - 20) * 0.6, 4.0), 7)
+    seq, share, others, _ = label_scene(tmp_path, 50, lambda k: 0.0, [car])
+    for k in (0, 8, 14):  # waiting, long before it leaves
+        assert share(k, 7, "semantickitti") > 0.8
+        assert share(k, 7, "instant") < 0.05
+    for k in (30, 38):
+        assert share(k, 7, "semantickitti") > 0.6 and share(k, 7, "instant") > 0.6
+    assert max(others(k, 7, "semantickitti") for k in range(50)) == 0
+
+
+def test_a_pedestrian_who_stops_beside_a_wall(tmp_path):
+    person = Mover((0.5, 0.5, 1.7), lambda k: (6.0 + min(k, 25) * 0.14, 6.5), 9)
+    walls = [(-40, 80, 7.5, 8.0), (-40, 80, -13, -12)]  # a wall 0.75 m beside the person
+    seq, share, others, _ = label_scene(tmp_path, 50, lambda k: 0.0, [person], walls)
+    assert share(12, 9, "instant") > 0.5
+    assert share(45, 9, "semantickitti") > 0.5 and share(45, 9, "instant") < 0.1
+    wall_moving = sum(int((semantic_ids(seq[k].labels) == WALL).sum() and
+                          others(k, 9, "semantickitti")) for k in range(0, 50, 7))
+    assert wall_moving == 0
+
+
+def test_a_parked_car_passed_closely_stays_static(tmp_path):
+    parked = Mover((4.5, 1.8, 1.5), lambda k: (20.0, 2.4), 5)
+    seq, share, others, _ = label_scene(tmp_path, 40, lambda k: 1.0 * k, [parked])
+    for k in range(0, 40, 3):
+        assert share(k, 5, "semantickitti") == 0.0 and others(k, 5, "semantickitti") == 0
+
+
+def test_a_wall_revealed_behind_a_mover_is_never_labelled_moving(tmp_path):
+    car = Mover((4.5, 1.8, 1.5), lambda k: (-5.0 + 0.8 * k, 5.0), 3)
+    walls = [(-10, 40, 8.0, 8.5), (-40, 80, -13, -12)]
+    seq, share, others, (labeler, result, work) = label_scene(tmp_path, 40, lambda k: 0.0, [car], walls)
+    for k in range(40):
+        wall = semantic_ids(seq[k].labels) == WALL
+        assert not scan_labels(labeler, result, work, k, "semantickitti")[wall].any()
+    assert share(20, 3, "semantickitti") > 0.8 and share(20, 3, "instant") > 0.8
+
+
+def test_a_bus_alongside_the_moving_sensor_is_found(tmp_path):
+    bus = Mover((12.0, 2.5, 3.2), lambda k: (5.0 + 0.7 * k, -4.5), 4)
+    seq, share, others, _ = label_scene(tmp_path, 60, lambda k: 0.5 * k, [bus])
+    shares = [share(k, 4, "semantickitti") for k in range(0, 60, 5)]
+    assert np.mean(shares) > 0.8, shares
+    assert max(others(k, 4, "semantickitti") for k in range(0, 60, 5)) < 50
+
+
+# -- the command ------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def jam(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("jam")
+    result = runner.invoke(app, ["simulate", str(root), "--sequences", "00", "--scans", "30",
+                                 "--preset", "traffic_jam", "--sensor", "vlp32c", "--seed", "5"])
+    assert result.exit_code == 0, result.output
+    return root
+
+
+@pytest.mark.parametrize("convention", ["semantickitti", "instant"])
+def test_autolabel_end_to_end_on_a_simulated_drive(jam, tmp_path, convention):
+    out = tmp_path / "auto"
+    result = runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(out),
+                                 "--convention", convention, "--png"])
+    assert result.exit_code == 0, result.output
+    seq_out = out / "sequences" / "00"
+    assert (seq_out / "label_convention.txt").read_text().strip() == convention
+    assert len(list((seq_out / "predictions").glob("*.label"))) == 30
+    assert (seq_out / "movers.png").stat().st_size > 1000 and (seq_out / "poses.txt").is_file()
+    rows = (seq_out / "objects.csv").read_text().splitlines()
+    assert rows[0].startswith("id,first_scan,last_scan") and len(rows) > 3
+    assert not [p for p in (out / "sequences").iterdir() if p.name.startswith(".")]  # no partial output left
+    result = runner.invoke(app, ["eval", str(out), str(jam), "--convention", convention])
+    assert result.exit_code == 0, result.output
+    iou = float(next(line.split()[1] for line in result.output.splitlines() if line.startswith("       all")))
+    assert iou > 55.0, result.output  # 30 scans: less past and future than a real drive has
+
+
+def test_autolabel_refuses_bad_input_with_one_line_and_writes_nothing(jam, tmp_path):
+    out = tmp_path / "o"
+    empty = tmp_path / "empty" / "velodyne"
+    empty.mkdir(parents=True)
+    one = tmp_path / "one"
+    (one / "velodyne").mkdir(parents=True)
+    src = jam / "sequences" / "00" / "velodyne" / "000000.bin"
+    (one / "velodyne" / "000000.bin").write_bytes(src.read_bytes())
+    for drive, message in ((empty.parent, "no .bin scans"), (one, "at least 2"),
+                           (tmp_path / "missing", "drive not found"), (tmp_path, "neither a SemanticKITTI")):
+        result = runner.invoke(app, ["autolabel", str(drive), "--out", str(out), "--sensor", "vlp32c"])
+        assert result.exit_code != 0 and message in str(result.exception) + result.output, (drive, result.output)
+    result = runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(out),
+                                 "--convention", "moving"])
+    assert result.exit_code != 0 and "unknown --convention" in result.output
+    assert not (out / "sequences").exists() or not any((out / "sequences").iterdir())
+    # mixed sensors: VLP-16 scans among the VLP-32C ones
+    mixed = tmp_path / "mixed"
+    (mixed / "velodyne").mkdir(parents=True)
+    for i in range(12):
+        (mixed / "velodyne" / f"{i:06d}.bin").write_bytes(
+            (jam / "sequences" / "00" / "velodyne" / f"{i:06d}.bin").read_bytes())
+    runner.invoke(app, ["simulate", str(tmp_path / "v16"), "--sequences", "00", "--scans", "12", "--preset", "easy",
+                        "--sensor", "vlp16"])
+    for i in range(12, 24):
+        (mixed / "velodyne" / f"{i:06d}.bin").write_bytes(
+            (tmp_path / "v16" / "sequences" / "00" / "velodyne" / f"{i - 12:06d}.bin").read_bytes())
+    result = runner.invoke(app, ["autolabel", str(mixed), "--out", str(out), "--sensor", "vlp32c"])
+    assert result.exit_code != 0 and "does not fit the configured sensor" in str(result.exception)
+    assert not (out / "sequences" / "mixed").exists()
+    # an existing output
+    (out / "sequences" / "00").mkdir(parents=True)
+    result = runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(out)])
+    assert result.exit_code != 0 and "already exists" in result.output
+
+
+def test_a_bag_without_pointcloud2_is_refused(tmp_path):
+    from ros2_mos.io.bags import BagWriter, header, msg_class
+
+    bag = tmp_path / "strings"
+    with BagWriter(bag) as writer:
+        msg = msg_class("std_msgs/msg/Header")
+        writer.write("/header", 1, header(1, "x") if msg else None)
+    with pytest.raises(DatasetError, match="PointCloud2"):
+        from ros2_mos.offline.drives import open_drive
+
+        open_drive(bag)
+
+
+def test_labels_in_the_drive_are_read_by_nobody_but_eval(tmp_path):
+    """autolabel uses no label: the same scans without labels/ give the same predictions."""
+    car = Mover((4.5, 1.8, 1.5), lambda k: (10.0 + 0.5 * k, 4.0), 2)
+    folder = write_drive(tmp_path, 20, lambda k: 0.0, [car], WALLS)
+    import shutil
+
+    for sub in ("labels", "labels_instant"):
+        shutil.rmtree(folder / sub)
+    labeler = AutoLabeler(SENSOR, AutolabelConfig(use_poses=True))
+    (tmp_path / "w").mkdir()
+    result = labeler.label(FolderDrive(folder), tmp_path / "w")
+    assert result.movers  # labels gone, movers still found
