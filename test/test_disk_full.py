@@ -144,7 +144,7 @@ def test_export_on_a_full_disk_is_one_error_and_no_model(tmp_path, full_disk):
 
 def test_map_and_tables_on_a_full_disk_leave_nothing(tmp_path, full_disk):
     from ros2_mos.apps.mapping import write_map
-    from ros2_mos.io.atomic import write_text_atomically
+    from ros2_mos.core.atomic import write_text_atomically
 
     full_disk(tmp_path, budget=100)
     points = np.random.default_rng(0).uniform(-10, 10, (1000, 3))

@@ -8,7 +8,8 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "ros2_mos"
 
 #: Each layer may import its own and the lower ones only.
-LAYERS = {"core": 0, "io": 1, "sim": 2, "scoring": 3, "training": 4, "apps": 4, "ros": 5, "tools": 6, "cli": 7}
+LAYERS = {"core": 0, "io": 1, "sim": 2, "scoring": 3, "training": 4, "apps": 4, "offline": 4, "ros": 5, "tools": 6,
+          "cli": 7}
 
 
 def _imports(path: Path) -> list[tuple[int, str]]:

@@ -18,13 +18,13 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from ros2_mos.core.atomic import atomic_path, write_bytes_atomically
 from ros2_mos.core.config import MosConfig
 from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.projection import finite_mask
-from ros2_mos.io.atomic import atomic_path, write_bytes_atomically
 from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
-from ros2_mos.io.semantic_kitti import Frame, SemanticKittiSequence
+from ros2_mos.io.semantic_kitti import KITTI_TR, Frame, SemanticKittiSequence
 
 # Per-point tags a map keeps (ground truth of the scan point a map point came from).
 TAG_STATIC = 0
@@ -306,6 +306,41 @@ def build_maps(
         n_valid = int(res.valid.sum())
         moving.append(float(res.labels.sum()) / n_valid if n_valid else 0.0)
     return MappingResult(builder, np.array(poses), float(np.mean(moving)))
+
+
+def build_maps_from_labels(
+    sequence: SemanticKittiSequence,
+    labels_root: str | Path,
+    mapping: MappingConfig = MappingConfig(),
+    progress: Callable[[Iterable[Frame]], Iterable[Frame]] = lambda frames: frames,
+) -> MappingResult:
+    """The raw and the cleaned map from labels written beforehand (``ros2-mos autolabel`` or ``infer``):
+    ``LABELS_ROOT/sequences/<name>/predictions/*.label`` (every id 251-259 moving), with the poses written beside
+    them (``poses.txt``, autolabel's KISS-ICP over the whole drive) or, with ``mapping.poses='gt'``, the dataset's.
+    """
+    from ros2_mos.io.semantic_kitti import read_label, read_poses
+
+    folder = Path(labels_root) / "sequences" / sequence.name
+    predictions = folder / "predictions"
+    if not predictions.is_dir():
+        raise DatasetError(f"no labels for {sequence.name}: {predictions} is missing")
+    if mapping.poses == "gt":
+        poses = sequence.require_poses("mapping with ground-truth poses")
+    else:
+        if not (folder / "poses.txt").is_file():
+            raise DatasetError(f"{folder}: no poses.txt beside the labels (or use the dataset's: poses 'gt')")
+        poses = read_poses(folder / "poses.txt", KITTI_TR)
+        if len(poses) < len(sequence):
+            raise DatasetError(f"{folder / 'poses.txt'}: {len(poses)} poses for {len(sequence)} scans")
+    builder = MapBuilder(mapping)
+    moving_share = []
+    for frame in progress(sequence):
+        name = sequence.scan_files[frame.index].stem + ".label"
+        moving = to_moving_classes(read_label(predictions / name, len(frame.points))) == MOVING
+        builder.add(frame.points, poses[frame.index], moving, gt_tags(frame.labels, len(frame.points)),
+                    frame.timestamp)
+        moving_share.append(float(moving.mean()) if len(moving) else 0.0)
+    return MappingResult(builder, np.asarray(poses[: len(sequence)]), float(np.mean(moving_share)))
 
 
 # ---------------------------------------------------------------- files

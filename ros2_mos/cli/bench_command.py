@@ -82,7 +82,7 @@ def bench(
         lines += node_lines
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        from ros2_mos.io.atomic import write_text_atomically
+        from ros2_mos.core.atomic import write_text_atomically
 
         write_text_atomically(out, "\n".join(lines) + "\n")
         typer.echo(f"wrote {out}")

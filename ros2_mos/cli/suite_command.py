@@ -62,7 +62,7 @@ def suite(
     typer.echo(table)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        from ros2_mos.io.atomic import write_text_atomically
+        from ros2_mos.core.atomic import write_text_atomically
 
         write_text_atomically(out, table + "\n")
     if breakdown is not None:

@@ -144,7 +144,7 @@ def save_model_atomically(proto: Any, path: Path, check: Callable[[Path], None] 
     """
     import onnx
 
-    from ros2_mos.io.atomic import atomic_path
+    from ros2_mos.core.atomic import atomic_path
 
     with atomic_path(path) as tmp:  # a full disk: one OutputError line, neither file left half-written
         onnx.save(proto, tmp)

@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from ros2_mos.core.atomic import output_error
 from ros2_mos.core.errors import DatasetError
-from ros2_mos.io.atomic import output_error
 from ros2_mos.io.pointcloud2 import fill_xyzi
 
 #: Message type names used in this project's bags.

@@ -21,8 +21,8 @@ from typing import Iterator
 
 import numpy as np
 
+from ros2_mos.core.atomic import atomic_open
 from ros2_mos.core.errors import DatasetError
-from ros2_mos.io.atomic import atomic_open
 
 KITTI_TR = np.array(
     [

@@ -424,7 +424,7 @@ class Trainer:
         }
 
     def _save(self, name: str, state: dict[str, Any]) -> None:
-        from ros2_mos.io.atomic import atomic_path
+        from ros2_mos.core.atomic import atomic_path
 
         with atomic_path(self.out_dir / name) as tmp:  # a full disk: OutputError, the last checkpoint kept whole
             torch.save(state, tmp)
@@ -462,7 +462,7 @@ class Trainer:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             import yaml
 
-            from ros2_mos.io.atomic import write_text_atomically
+            from ros2_mos.core.atomic import write_text_atomically
 
             write_text_atomically(self.out_dir / "config.yaml", yaml.safe_dump(config.to_dict(), sort_keys=False))
         started = time.monotonic()
