@@ -226,3 +226,19 @@ def test_labels_in_the_drive_are_read_by_nobody_but_eval(tmp_path):
     (tmp_path / "w").mkdir()
     result = labeler.label(FolderDrive(folder), tmp_path / "w")
     assert result.movers  # labels gone, movers still found
+
+
+def test_map_cleans_with_autolabel_s_labels(jam, tmp_path):
+    """`map --labels` builds the cleaned map from autolabel's labels and poses: fewer ghosts than the raw map."""
+    out = tmp_path / "auto"
+    assert runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(out)]).exit_code == 0
+    result = runner.invoke(app, ["map", str(jam / "sequences" / "00"), "--out", str(tmp_path / "m.ply"),
+                                 "--labels", str(out)])
+    assert result.exit_code == 0, result.output
+    ghosts = {line.split()[0]: float(line.split()[2]) for line in result.output.splitlines()
+              if line.split()[:1] in (["raw"], ["cleaned"])}
+    assert ghosts["cleaned"] < 0.5 * ghosts["raw"], result.output
+    assert (tmp_path / "m_cleaned.ply").is_file()
+    result = runner.invoke(app, ["map", str(jam / "sequences" / "00"), "--out", str(tmp_path / "n.ply"),
+                                 "--labels", str(tmp_path / "nothing")])
+    assert result.exit_code != 0 and "predictions" in str(result.exception)

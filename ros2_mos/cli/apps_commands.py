@@ -104,11 +104,22 @@ def map_command(
     voxel_size: float = typer.Option(0.1, help="Map voxel size in m (one point kept per voxel)"),
     max_range: float = typer.Option(50.0, help="Scan points farther than this (m) stay out of the maps"),
     poses: str = typer.Option("estimated", help="estimated (the pipeline's KISS-ICP) | gt (the dataset's poses.txt)"),
+    labels: Optional[Path] = typer.Option(None, "--labels", help="Clean with labels written before instead of the "
+                                          "online model: the --out root of `ros2-mos autolabel` (or `infer`); "
+                                          "estimated poses are then the poses.txt written beside them"),
 ) -> None:
     """Accumulate the scans into a raw and a MOS-cleaned voxel map; ghost share on labelled data."""
     from tqdm import tqdm
 
-    from ros2_mos.apps.mapping import MappingConfig, build_maps, ghost_share, map_paths, write_bev_png, write_map
+    from ros2_mos.apps.mapping import (
+        MappingConfig,
+        build_maps,
+        build_maps_from_labels,
+        ghost_share,
+        map_paths,
+        write_bev_png,
+        write_map,
+    )
     from ros2_mos.cli.core_commands import load_config
     from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 
@@ -120,8 +131,11 @@ def map_command(
         check_output(png, "--png")
     seq = SemanticKittiSequence(sequence_dir)
     mapping = MappingConfig(voxel_size=voxel_size, max_range=max_range, poses=poses)
-    result = build_maps(seq, load_config(params, model), mapping,
-                        progress=lambda it: tqdm(it, total=len(seq), desc=f"map {seq.name}"))
+    bar = lambda it: tqdm(it, total=len(seq), desc=f"map {seq.name}")  # noqa: E731
+    if labels is not None:
+        result = build_maps_from_labels(seq, labels, mapping, progress=bar)
+    else:
+        result = build_maps(seq, load_config(params, model), mapping, progress=bar)
     raw_path, clean_path = map_paths(out)
     write_map(raw_path, result.raw.points)
     write_map(clean_path, result.cleaned.points)
@@ -133,4 +147,5 @@ def map_command(
         typer.echo("static voxels of the raw map kept in the cleaned map: "
                    f"{_fmt(100 * result.builder.static_kept(), 1)} %")
     if png is not None:
-        typer.echo(f"wrote {write_bev_png(png, {'raw': result.raw, 'MOS-cleaned': result.cleaned})}")
+        cleaned = "autolabel-cleaned" if labels is not None else "MOS-cleaned"
+        typer.echo(f"wrote {write_bev_png(png, {'raw': result.raw, cleaned: result.cleaned})}")
