@@ -51,8 +51,12 @@ def static_street(walls: list[tuple[float, float, float, float]]) -> TriangleSou
 
 
 def write_drive(root: Path, n_scans: int, ego: Callable[[int], float], movers: list[Mover],
-                walls: list[tuple[float, float, float, float]], name: str = "scene") -> Path:
-    """Render and write the drive (ego at (ego(k), 0), heading +x); returns the sequence folder."""
+                walls: list[tuple[float, float, float, float]], name: str = "scene", upper_noise: float = 0.0) -> Path:
+    """Render and write the drive (ego at (ego(k), 0), heading +x); returns the sequence folder.
+
+    ``upper_noise``: the range of every return above -5 deg elevation gets Gaussian noise of this sigma (m), drawn
+    anew in every scan (a sensor whose upper beams are noisier than the simulator's).
+    """
     folder = root / "sequences" / name
     lidar = Lidar(SENSOR, SensorEffects(range_sigma=0.0, dropout=0.0, grazing_dropout=0.0, far_dropout=0.0,
                                         remission_sigma=0.0, ego_clearance=1.0))
@@ -70,7 +74,13 @@ def write_drive(root: Path, n_scans: int, ego: Callable[[int], float], movers: l
         pose = np.eye(4)
         pose[0, 3], pose[2, 3] = ego(k), SENSOR_HEIGHT
         scan = lidar.scan([static, dynamic], pose, np.random.default_rng(k))
-        write_scan(folder / "velodyne" / f"{k:06d}.bin", scan.points, scan.remission)
+        points = scan.points
+        if upper_noise > 0:
+            r = np.linalg.norm(points, axis=1)
+            upper = points[:, 2] > r * np.sin(np.radians(-5.0))
+            noise = np.random.default_rng(1000 + k).normal(0.0, upper_noise, len(points))
+            points = np.where(upper[:, None], points * ((r + noise) / r)[:, None], points).astype(np.float32)
+        write_scan(folder / "velodyne" / f"{k:06d}.bin", points, scan.remission)
         instant = scan.labels
         inst = instant >> np.uint32(16)
         semantickitti = np.where(np.isin(inst, list(ever)), (inst << np.uint32(16)) | CAR_MOVING, instant)

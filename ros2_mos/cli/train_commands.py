@@ -155,3 +155,65 @@ def import_lidar_mos(
     report = run_import(model_dir, out)
     typer.echo(f"exported {report.path} ({report.size_bytes / 1e6:.1f} MB, ONNX vs PyTorch max abs diff "
                f"{report.max_abs_diff:.1e}); trained on KITTI's HDL-64E: other sensors need their own model")
+
+
+@app.command()
+def adapt(
+    drives: list[Path] = typer.Argument(..., help="Unlabelled drives of one sensor: SemanticKITTI sequence folders "
+                                                  "(velodyne/*.bin) or rosbag2 bags"),
+    out: Path = typer.Option(..., "--out", help="The adapted ONNX model to write"),
+    model: Optional[Path] = typer.Option(None, help="BASE model to fine-tune (default: the shipped model of the "
+                                                    "sensor)"),
+    sensor: Optional[str] = typer.Option(None, help="Sensor preset of the drives (default: BASE's)"),
+    work: Optional[Path] = typer.Option(None, help="Work folder: labels, data, caches, checkpoints; an interrupted "
+                                                   "run resumes from it (default: OUT's name + .work/)"),
+    epochs: int = typer.Option(6, min=1, max=100, help="Fine-tuning epochs"),
+    sim_drives: int = typer.Option(4, min=0, max=40, help="Simulated drives of the same sensor mixed in"),
+    holdout: float = typer.Option(0.25, help="Share of each drive (its last scans) held out to pick the epoch and "
+                                             "the threshold"),
+    max_minutes: float = typer.Option(50.0, help="Wall-clock budget of the training (minutes)"),
+    topic: Optional[str] = typer.Option(None, help="PointCloud2 topic of bags (default: their only one)"),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Print the plan (scans, epochs, expected minutes); "
+                                                          "do nothing"),
+) -> None:
+    """Fine-tune the online model on your own unlabelled drives, with labels made by `ros2-mos autolabel`."""
+    import math
+
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.core.inference import MosModel, default_model_path
+    from ros2_mos.offline.drives import open_drive
+    from ros2_mos.training.adapt import AdaptConfig, plan_adaptation
+    from ros2_mos.training.adapt import adapt as run_adapt
+
+    if not math.isfinite(holdout) or not 0 < holdout < 0.9:
+        fail(f"--holdout must be in (0, 0.9), got {holdout}")
+    if not math.isfinite(max_minutes) or max_minutes <= 0:
+        fail(f"--max-minutes must be a positive number, got {max_minutes}")
+    if out.suffix != ".onnx":
+        fail(f"--out must end in .onnx, got {out.name}")
+    check_output(out, "--out")
+    if sensor is not None:
+        spec = sensor_preset(sensor)
+        base = model if model is not None else default_model_path(spec.name)
+    else:
+        base = model if model is not None else default_model_path(None)
+        spec = MosModel(str(base)).metadata.sensor
+    opened = [open_drive(d, topic) for d in drives]
+    config = AdaptConfig(epochs=epochs, holdout=holdout, sim_drives=sim_drives, max_minutes=max_minutes)
+    plan = plan_adaptation(opened, Path(base), spec, config)
+    typer.echo(plan.describe())
+    if dry_run:
+        return
+    work_dir = work if work is not None else out.with_name(out.stem + ".work")
+    check_output(work_dir, "--work", folder=True)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    from tqdm import tqdm
+
+    with tqdm(desc="prepare", unit="scan") as bar:
+        def step(stage: str, n: int) -> None:
+            bar.set_postfix_str(stage, refresh=False)
+            bar.update(n)
+
+        result = run_adapt(opened, out, plan, work_dir, progress=step, log=typer.echo)
+    typer.echo(f"wrote {result.model}: best epoch {result.best_epoch + 1}, held-out IoU against the automatic labels "
+               f"{100 * result.best_valid_iou:.1f}, threshold {result.threshold:.2f}, {result.minutes:.1f} min")
