@@ -242,3 +242,25 @@ def test_map_cleans_with_autolabel_s_labels(jam, tmp_path):
     result = runner.invoke(app, ["map", str(jam / "sequences" / "00"), "--out", str(tmp_path / "n.ply"),
                                  "--labels", str(tmp_path / "nothing")])
     assert result.exit_code != 0 and "predictions" in str(result.exception)
+
+
+def test_every_stored_point_gets_a_label_also_non_finite_and_zero_ones(tmp_path):
+    """Scans with NaN rows and points at the origin: one label per stored point, those static."""
+    from ros2_mos.io.semantic_kitti import read_label, read_scan, write_scan
+
+    car = Mover((4.5, 1.8, 1.5), lambda k: (8.0 + 0.6 * k, 4.0), 2)
+    folder = write_drive(tmp_path, 12, lambda k: 0.0, [car], WALLS)
+    for k in (0, 5):
+        path = folder / "velodyne" / f"{k:06d}.bin"
+        scan = read_scan(path)
+        bad = np.array([[np.nan, 1.0, 1.0, 0.1], [0.0, 0.0, 0.0, 0.2], [np.inf, 0.0, 0.0, 0.0]], np.float32)
+        scan = np.vstack([bad, scan, bad])
+        write_scan(path, scan[:, :3], scan[:, 3])
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["autolabel", str(folder), "--out", str(out), "--use-poses", "--sensor", "vlp32c"])
+    assert result.exit_code == 0, result.output
+    for k in (0, 5, 7):
+        n = len(read_scan(folder / "velodyne" / f"{k:06d}.bin"))
+        labels = read_label(out / "sequences" / "scene" / "predictions" / f"{k:06d}.label", n)
+        if k in (0, 5):
+            assert (labels[:3] == 9).all() and (labels[-3:] == 9).all()

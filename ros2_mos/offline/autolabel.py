@@ -263,14 +263,15 @@ def autolabel_drive(drive: Drive, out_root: str | Path, sensor: SensorConfig, co
         result = labeler.label(drive, workdir, progress)
         names = getattr(drive, "scan_names", [f"{i:06d}" for i in range(result.scans)])
         bev = BirdsEye() if png else None
-        scans = iter(drive) if png else None
-        for k in range(result.scans):
+        for k, scan in enumerate(drive):  # read again: each label file has one label per stored point
             moving = scan_labels(labeler, result, workdir, k, convention)
-            write_label(partial / "predictions" / f"{names[k]}.label", to_submission(moving))
+            full = np.zeros(scan.stored, bool)
+            full[scan.kept] = moving
+            write_label(partial / "predictions" / f"{names[k]}.label", to_submission(full))
             result.moving_points.append(int(moving.sum()))
-            if bev is not None and scans is not None:
+            if bev is not None:
                 tracks = track_ids(result, workdir, k)
-                bev.add(next(scans).points, result.poses[k], tracks if convention == SEMANTICKITTI
+                bev.add(scan.points, result.poses[k], tracks if convention == SEMANTICKITTI
                         else np.where(moving, tracks, -1), k)
             progress("labels", 1)
         shutil.rmtree(workdir)

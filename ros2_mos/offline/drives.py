@@ -19,8 +19,10 @@ from ros2_mos.core.errors import DatasetError
 class DriveScan:
     index: int
     stamp: float  # seconds since the drive's first scan
-    points: np.ndarray  # (N, 3) float32, finite
+    points: np.ndarray  # (N, 3) float32, the finite points with a range > 0
     intensity: np.ndarray  # (N,) float32
+    kept: np.ndarray  # (N,) their indices among the scan's points as stored (a label is due for each of those)
+    stored: int  # how many points the scan has as stored
 
 
 class Drive(Protocol):
@@ -32,9 +34,12 @@ class Drive(Protocol):
     def __iter__(self) -> Iterator[DriveScan]: ...
 
 
-def _finite(points: np.ndarray, intensity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    keep = np.isfinite(points).all(axis=1) & (np.einsum("ij,ij->i", points, points) > 0)
-    return np.ascontiguousarray(points[keep], np.float32), np.ascontiguousarray(intensity[keep], np.float32)
+def _scan(index: int, stamp: float, points: np.ndarray, intensity: np.ndarray) -> DriveScan:
+    """The finite points with a range > 0, and where they sit among the stored ones."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        keep = np.flatnonzero(np.isfinite(points).all(axis=1) & (np.einsum("ij,ij->i", points, points) > 0))
+    return DriveScan(index, stamp, np.ascontiguousarray(points[keep], np.float32),
+                     np.ascontiguousarray(intensity[keep], np.float32), keep, len(points))
 
 
 class FolderDrive:
@@ -57,8 +62,7 @@ class FolderDrive:
         t0 = float(self.sequence.times[0])
         for i, path in enumerate(self.sequence.scan_files):
             scan = read_scan(path)
-            points, intensity = _finite(scan[:, :3], scan[:, 3])
-            yield DriveScan(i, float(self.sequence.times[i]) - t0, points, intensity)
+            yield _scan(i, float(self.sequence.times[i]) - t0, scan[:, :3], scan[:, 3])
 
 
 class BagDrive:
@@ -83,9 +87,12 @@ class BagDrive:
 
         t0 = self.stamps[0] if self.stamps else 0
         for i, (stamp, msg) in enumerate(iter_pointclouds(self.path, self.topic)):
-            points, intensity, _ = decode_xyz_intensity(msg)
-            points, intensity = _finite(points, intensity)
-            yield DriveScan(i, (stamp - t0) * 1e-9, points, intensity)
+            points, intensity, valid = decode_xyz_intensity(msg)
+            scan = _scan(i, (stamp - t0) * 1e-9, points, intensity)
+            # labels are due for every point of the message, in its order (decode drops the non-finite ones)
+            scan.kept = valid[scan.kept]
+            scan.stored = int(msg.width) * int(msg.height)
+            yield scan
 
 
 def open_drive(path: str | Path, topic: str | None = None) -> FolderDrive | BagDrive:
