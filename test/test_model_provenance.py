@@ -13,11 +13,21 @@ from ros2_mos.core.inference import read_metadata
 from ros2_mos.core.metadata import TRAINING_CONFIG_KEY, read_training_config, write_training_config
 
 REPO = Path(__file__).resolve().parents[1]
-MODELS = sorted((REPO / "ros2_mos" / "models").glob("*.onnx"))
+SENSOR_MODELS = sorted((REPO / "ros2_mos" / "models").glob("*.onnx"))
+#: Models adapted with `ros2-mos adapt` ship beside the defaults (benchmarks/adaptation.md).
+MODELS = SENSOR_MODELS + sorted((REPO / "ros2_mos" / "models" / "adapted").glob("*.onnx"))
 
 
 def test_the_five_sensor_models_ship():
-    assert {m.stem for m in MODELS} == {"default", "vlp16", "vlp32c", "os1-64", "os1-128"}
+    assert {m.stem for m in SENSOR_MODELS} == {"default", "vlp16", "vlp32c", "os1-64", "os1-128"}
+
+
+def test_an_adapted_model_says_what_it_was_adapted_on():
+    import json
+
+    adapted = REPO / "ros2_mos" / "models" / "adapted" / "hdl64_kitti.onnx"
+    record = json.loads(read_metadata(adapted).extra["adaptation"])
+    assert record["drives"] == ["08b", "r1", "r2"] and record["base"] == "default.onnx"
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda p: p.stem)
