@@ -40,6 +40,10 @@ from ros2_mos.offline.visibility import SeenScan
 
 #: Fewer scans give no future or past to compare with.
 MIN_SCANS = 2
+#: The first RESTART_FROM scans' poses come from a second KISS-ICP pass over the first RESTART_SCANS scans that
+#: starts with the velocity the first pass found at scan RESTART_FROM (:meth:`AutoLabeler._restart`).
+RESTART_FROM = 8
+RESTART_SCANS = 14
 
 
 @dataclass(frozen=True)
@@ -55,10 +59,10 @@ class AutolabelConfig:
     #: ... or its track's centroid moved this fast (m/s) over the observations ``instant_span`` before and after it.
     instant_speed: float = 0.6
     instant_span: int = 3
-    #: An observation of a mover is moving (SemanticKITTI's convention) only within this many metres of where its
-    #: track was seen through: where it stopped is where it moved to, while a static pole or parked car that the
-    #: track ran into after losing the mover lies elsewhere.
-    support_radius: float = 1.5
+    instant_context: int = 10  # observations
+    #: An observation of a mover is moving (SemanticKITTI's convention) only where its box, grown by this many
+    #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
+    support_margin: float = 0.3
     use_poses: bool = False  # the drive's own poses instead of KISS-ICP
 
     def __post_init__(self) -> None:
@@ -131,8 +135,36 @@ class AutoLabeler:
             stamps.append(scan.stamp)
             sizes.append(len(scan.points))
             progress("poses", 1)
-        out = drive.poses[: len(stamps)] if use_own else np.asarray(poses)
-        return np.asarray(out, np.float64), np.asarray(stamps), sizes
+        if use_own:
+            return np.asarray(drive.poses[: len(stamps)], np.float64), np.asarray(stamps), sizes
+        return self._restart(drive, np.asarray(poses, np.float64)), np.asarray(stamps), sizes
+
+    def _restart(self, drive: Drive, poses: np.ndarray) -> np.ndarray:
+        """Register the drive's first scans again, knowing how fast it moved.
+
+        KISS-ICP starts from rest: when the drive starts under way, the first scans are registered a step or more
+        off (0.7-1.2 m measured on a simulated drive starting at 7.7 m/s) and would see through everything that
+        stands. They are registered again from a start with the velocity of scans :data:`RESTART_FROM` on, and
+        chained to the first pass's poses there.
+        """
+        from ros2_mos.core.odometry import KissIcpOdometry
+
+        n = len(poses)
+        if n <= RESTART_SCANS:
+            return poses
+        odometry = KissIcpOdometry(self.odometry_config)
+        odometry._kiss.last_delta = np.linalg.inv(poses[RESTART_FROM]) @ poses[RESTART_FROM + 1]
+        again = []
+        for scan in drive:
+            if scan.index >= RESTART_SCANS:
+                break
+            again.append(odometry.estimate(scan.points))
+            odometry.update_map()
+        again = np.asarray(again)
+        anchor = poses[RESTART_FROM] @ np.linalg.inv(again[RESTART_FROM])
+        out = poses.copy()
+        out[:RESTART_FROM] = anchor @ again[:RESTART_FROM]
+        return out
 
     def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, tracker: Tracker,
                               workdir: Path, progress: ProgressFn) -> None:
@@ -190,7 +222,9 @@ class AutoLabeler:
         return found.point_object, observations
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
-        """The observations of movers that move in their own scan (the instant convention)."""
+        """The observations of movers that move in their own scan (the instant convention): seen through by a near
+        scan, or with a moving centroid within ``instant_context`` observations of one that was seen through (so that
+        the centroid of a car that waits long, which slides as the sensor passes it, does not count)."""
         cfg = self.config
         out = set()
         for tid in result.movers:
@@ -198,25 +232,32 @@ class AutoLabeler:
             c = np.array([o.centroid[:2] for o in obs])
             t = result.stamps[[o.scan for o in obs]]
             m = len(obs)
-            before = np.maximum(np.arange(m) - cfg.instant_span, 0)
-            after = np.minimum(np.arange(m) + cfg.instant_span, m - 1)
+            index = np.arange(m)
+            before = np.maximum(index - cfg.instant_span, 0)
+            after = np.minimum(index + cfg.instant_span, m - 1)
             dt = np.maximum(t[after] - t[before], 1e-3)
             speed = np.where(after > before, np.linalg.norm(c[after] - c[before], axis=1) / dt, 0.0)
-            for i, o in enumerate(obs):
-                if o.near >= cfg.instant_seen_through or speed[i] >= cfg.instant_speed:
-                    out.add((o.scan, o.obj))
+            near = np.array([o.near >= cfg.instant_seen_through for o in obs])
+            seen = np.flatnonzero([o.far >= cfg.tracks.seen_through for o in obs])
+            context = (np.abs(index[:, None] - seen[None, :]) <= cfg.instant_context).any(axis=1) if len(seen) \
+                else np.zeros(m, bool)
+            moving = near | ((speed >= cfg.instant_speed) & context)
+            out.update((o.scan, o.obj) for o, flag in zip(obs, moving) if flag)
         return out
 
     def _moving_ever(self, result: AutolabelResult) -> set[tuple[int, int]]:
-        """The observations of movers that lie where their track was seen through (SemanticKITTI's convention)."""
+        """The observations of movers that overlap, from above, where their track was seen through (SemanticKITTI's
+        convention): where it waited is where it then moved from or to, while a static pole or parked car that the
+        track ran into after losing the mover stands apart from all of that."""
         cfg = self.config
         out = set()
         for tid in result.movers:
             obs = result.tracker.tracks[tid].observations
-            c = np.array([o.centroid[:2] for o in obs])
-            evidence = c[[o.far >= cfg.tracks.seen_through for o in obs]]
-            d2 = ((c[:, None, :] - evidence[None, :, :]) ** 2).sum(axis=-1).min(axis=1)
-            out.update((o.scan, o.obj) for o, near in zip(obs, d2 <= cfg.support_radius**2) if near)
+            lo = np.array([o.lo[:2] for o in obs]) - cfg.support_margin
+            hi = np.array([o.hi[:2] for o in obs]) + cfg.support_margin
+            evidence = np.array([o.far >= cfg.tracks.seen_through for o in obs])
+            overlap = ((lo[:, None, :] <= hi[None, evidence, :]) & (hi[:, None, :] >= lo[None, evidence, :])).all(-1)
+            out.update((o.scan, o.obj) for o, supported in zip(obs, overlap.any(axis=1)) if supported)
         return out
 
     # -- output ----------------------------------------------------------------------------------------------

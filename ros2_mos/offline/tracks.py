@@ -26,7 +26,8 @@ class TrackConfig:
     max_speed: float = 40.0  # m/s: faster velocity estimates are clipped
     seen_through: float = 0.3  # share of an observation's points seen through that makes it moving evidence
     min_moving_observations: int = 2
-    moving_share: float = 0.2  # ... and at least this share of the track's observations
+    moving_share: float = 0.2  # ... and at least this share of the track's observations,
+    min_evidence_travel: float = 1.5  # m: or seen-through observations this far apart (it waited long, then left)
 
 
 @dataclass
@@ -123,10 +124,16 @@ class Tracker:
         self.track_of[(obs.scan, obs.obj)] = track.id
 
     def seen_moving(self, track: Track) -> bool:
-        """Enough of the track's observations were seen through."""
+        """Enough of the track's observations were seen through: a share of them, or fewer that lie apart (a car
+        that waited most of the drive and then left; a static object seen through now and then stays in place)."""
         cfg = self.config
-        evidence = sum(o.far >= cfg.seen_through for o in track.observations)
-        return evidence >= cfg.min_moving_observations and evidence >= cfg.moving_share * len(track.observations)
+        evidence = [o for o in track.observations if o.far >= cfg.seen_through]
+        if len(evidence) < cfg.min_moving_observations:
+            return False
+        if len(evidence) >= cfg.moving_share * len(track.observations):
+            return True
+        centroids = np.array([o.centroid[:2] for o in evidence])
+        return float(np.hypot(*(centroids.max(axis=0) - centroids.min(axis=0)))) >= cfg.min_evidence_travel
 
     def movers(self) -> dict[int, str]:
         """{track id: the evidence that makes it a mover} ('seen through')."""
