@@ -21,8 +21,8 @@ STALE_AFTER_S = 2.0
 def node_status(s: Snapshot, last: ScanOutput | None, stream_problem: str = "") -> tuple[int, str, dict[str, Any]]:
     """(level, message, key values): ERROR for a foreign sensor, sensors interleaved on the input topic
     (``stream_problem``: :attr:`~ros2_mos.ros.processor.ScanProcessor.stream_problem`) or a streak of failures,
-    WARN for stale input or degraded labels (with the reason: a reset, another frame_id, ...), OK otherwise; the
-    values carry every counter, rate and stage timing."""
+    WARN for stale input, overload (scans dropped within the last few seconds) or degraded labels (with the reason: a
+    reset, another frame_id, ...), OK otherwise; the values carry every counter, rate and stage timing."""
     level, message = m.OK, "ok"
     stale = s.seconds_since_last_scan is None or s.seconds_since_last_scan > STALE_AFTER_S
     if last is not None and last.result.sensor_mismatch:
@@ -34,6 +34,11 @@ def node_status(s: Snapshot, last: ScanOutput | None, stream_problem: str = "") 
     elif stale:
         level, message = m.WARN, "no input" + ("" if s.seconds_since_last_scan is None else
                                                f" for {s.seconds_since_last_scan:.1f} s")
+    elif s.dropped_recent > 0:
+        level, message = m.WARN, (f"overloaded: {s.dropped_recent} of {s.received_recent} scans of the last "
+                                  f"{s.recent_s:g} s dropped (input {s.input_hz:.1f} Hz, capacity "
+                                  f"{s.capacity_hz:.1f} Hz): the newest scan is labelled, the oldest waiting one "
+                                  "dropped")
     elif last is not None and last.result.degraded:
         level, message = m.WARN, "labels degraded: " + ("; ".join(last.notes or last.result.warnings) or
                                                         f"{last.result.n_past_available} of "
@@ -41,6 +46,7 @@ def node_status(s: Snapshot, last: ScanOutput | None, stream_problem: str = "") 
     values: dict[str, Any] = {
         "rate_hz": s.rate_hz, "input_hz": s.input_hz, "capacity_hz": s.capacity_hz,
         "received": s.received, "processed": s.processed, "dropped": s.dropped,
+        "dropped_recent": s.dropped_recent, "overloaded": s.dropped_recent > 0,
         "lost_in_transport": s.lost_in_transport,
         "skipped": s.skipped_total, **{f"skipped.{k}": v for k, v in s.skipped.items()},
         "errors": s.errors, "resets": s.resets, "degraded_scans": s.degraded,

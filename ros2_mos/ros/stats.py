@@ -49,6 +49,11 @@ class Snapshot:
     consecutive_errors: int
     seconds_since_last_scan: float | None
     extra: dict[str, str] = field(default_factory=dict)
+    #: Clouds dropped from the node's queue / received within the last ``recent_s`` seconds (wall clock): the node
+    #: is overloaded *now* when some were dropped (it then labels the newest scan and lets the older ones go).
+    dropped_recent: int = 0
+    received_recent: int = 0
+    recent_s: float = 0.0
 
     @property
     def skipped_total(self) -> int:
@@ -58,8 +63,12 @@ class Snapshot:
 class NodeStats:
     """Thread-safe counters and sliding windows (``window`` scans) of timings."""
 
-    def __init__(self, window: int = 50, clock: Callable[[], float] = time.monotonic, max_gap_s: float = 1.0) -> None:
+    def __init__(self, window: int = 50, clock: Callable[[], float] = time.monotonic, max_gap_s: float = 1.0,
+                 recent_s: float = 5.0) -> None:
         self._lock = threading.Lock()
+        self._recent_s = recent_s
+        self._recent_drops: deque[float] = deque()  # wall-clock times of the drops within recent_s
+        self._recent_received: deque[float] = deque()
         self._clock = clock
         self._window = window
         self.received = 0
@@ -86,6 +95,8 @@ class NodeStats:
         with self._lock:
             self.received += 1
             self._last_received = self._clock()
+            self._recent_received.append(self._last_received)
+            self._forget_old(self._last_received)
             if stamp is None or not math.isfinite(stamp):
                 return
             if self._last_stamp is None or self._first_stamp is None:
@@ -120,6 +131,14 @@ class NodeStats:
     def on_dropped(self) -> None:
         with self._lock:
             self.dropped += 1
+            now = self._clock()
+            self._recent_drops.append(now)
+            self._forget_old(now)
+
+    def _forget_old(self, now: float) -> None:
+        for times in (self._recent_drops, self._recent_received):
+            while times and times[0] < now - self._recent_s:
+                times.popleft()
 
     def on_skipped(self, reason: str, message: str) -> None:
         with self._lock:
@@ -150,6 +169,7 @@ class NodeStats:
     def snapshot(self) -> Snapshot:
         with self._lock:
             now = self._clock()
+            self._forget_old(now)
             span = self._closed_span + self._input_span()
             total = self._stages.get("total")
             capacity = 1000.0 * len(total) / sum(total) if total and sum(total) > 0 else 0.0
@@ -163,8 +183,9 @@ class NodeStats:
                 last_warning=self.last_warning,
                 consecutive_errors=self.consecutive_errors,
                 seconds_since_last_scan=None if self._last_received is None else now - self._last_received,
+                dropped_recent=len(self._recent_drops), received_recent=len(self._recent_received),
+                recent_s=self._recent_s,
             )
-
 
     def _input_span(self) -> float:
         """Seconds of input time covered by the received clouds (one nominal period per cloud at the ends)."""
