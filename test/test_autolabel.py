@@ -82,9 +82,18 @@ def test_objects_keep_a_car_and_drop_a_building_and_the_ground():
 
 
 def test_config_is_checked():
-    for bad in ({"near_offsets": (0,)}, {"instant_seen_through": 0.0}, {"instant_seen_through": float("nan")}):
+    from ros2_mos.offline.objects import ObjectConfig
+    from ros2_mos.offline.tracks import TrackConfig
+
+    for bad in ({"near_offsets": (0,)}, {"instant_seen_through": 0.0}, {"instant_seen_through": float("nan")},
+                {"instant_seen_through": 1.5}, {"instant_speed": float("inf")}, {"support_margin": -0.1}):
         with pytest.raises(ConfigError):
             AutolabelConfig(**bad)
+    for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
+                     (TrackConfig, {"gate": -1.0}), (TrackConfig, {"seen_through": 2.0})):
+        with pytest.raises(ConfigError):
+            cls(**bad)
+    AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0))  # zero where zero means something
 
 
 # -- hand-made drives -------------------------------------------------------------------------------------------

@@ -34,7 +34,7 @@ from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_conve
 from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
-from ros2_mos.offline.objects import ObjectConfig, find_objects
+from ros2_mos.offline.objects import ObjectConfig, check_numbers, find_objects
 from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
 from ros2_mos.offline.visibility import SeenScan
 
@@ -69,8 +69,8 @@ class AutolabelConfig:
         offsets = (*self.near_offsets, *self.far_offsets)
         if not offsets or 0 in offsets:
             raise ConfigError("autolabel: offsets must be non-zero scan offsets")
-        if not 0.0 < self.instant_seen_through <= 1.0:
-            raise ConfigError(f"autolabel: instant_seen_through must be in (0, 1], got {self.instant_seen_through}")
+        check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin"),
+                      at_most_one=("instant_seen_through",))
 
     @property
     def window(self) -> int:

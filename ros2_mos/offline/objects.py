@@ -18,7 +18,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ros2_mos.core.errors import ConfigError
 from ros2_mos.core.segments import _union_find
+
+
+def check_numbers(config: object, what: str, zero_ok: tuple[str, ...] = (), at_most_one: tuple[str, ...] = ()) -> None:
+    """Every number of a config dataclass finite and > 0 (>= 0 for ``zero_ok``; <= 1 for ``at_most_one``)."""
+    import dataclasses
+    import math
+
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            continue
+        low_ok = value >= 0 if f.name in zero_ok else value > 0
+        if not math.isfinite(value) or not low_ok or (f.name in at_most_one and value > 1):
+            bound = ">= 0" if f.name in zero_ok else "> 0"
+            raise ConfigError(f"{what}: {f.name} must be a finite number {bound}"
+                              f"{' and <= 1' if f.name in at_most_one else ''}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -34,6 +51,9 @@ class ObjectConfig:
     max_bottom: float = 1.5  # m: an object's lowest point is this close to the ground
     attach_above: float = 0.08  # m: low points higher than this above the ground under an object are attached to it
     attach_cell: float = 0.2  # m: ... when they share a top-view cell of this size with one of its points
+
+    def __post_init__(self) -> None:
+        check_numbers(self, "autolabel objects", zero_ok=("ground_radius", "attach_above"))
 
 
 @dataclass

@@ -29,6 +29,11 @@ class TrackConfig:
     moving_share: float = 0.2  # ... and at least this share of the track's observations,
     min_evidence_travel: float = 1.5  # m: or seen-through observations this far apart (it waited long, then left)
 
+    def __post_init__(self) -> None:
+        from ros2_mos.offline.objects import check_numbers
+
+        check_numbers(self, "autolabel tracks", zero_ok=("moving_share",), at_most_one=("seen_through", "moving_share"))
+
 
 @dataclass
 class Observation:
