@@ -209,12 +209,13 @@ def adapt(
     work_dir.mkdir(parents=True, exist_ok=True)
     from tqdm import tqdm
 
-    steps = 3 * sum(d.scans for d in plan.drives) + plan.sim_train  # autolabel's three passes; simulation
+    steps = 3 * sum(d.scans for d in plan.drives) + plan.sim_train + config.sim_holdout * config.sim_scans
     with tqdm(total=steps, desc="prepare (labels, simulated drives)", unit="scan") as bar:
         def step(stage: str, n: int) -> None:
             bar.set_postfix_str(stage, refresh=False)
             bar.update(n)
 
         result = run_adapt(opened, out, plan, work_dir, progress=step, log=typer.echo)
-    typer.echo(f"wrote {result.model}: best epoch {result.best_epoch}, held-out IoU against the automatic labels "
-               f"{100 * result.best_valid_iou:.1f}, threshold {result.threshold:.2f}, {result.minutes:.1f} min")
+    typer.echo(f"wrote {result.model}: best epoch {result.best_epoch}, held-out IoU {100 * result.best_valid_iou:.1f} "
+               f"(real scans against their automatic labels, and simulated drives), threshold {result.threshold:.2f}, "
+               f"{result.minutes:.1f} min")

@@ -10,8 +10,9 @@ The steps (:func:`adapt`), each resumable from what the work folder already hold
    and free-space code. Simulated drives of the same sensor are mixed in, so what the simulator taught is kept.
 3. **Fine-tuning** from BASE's checkpoint (the one its ``training_config`` names), with BASE's recipe and a short
    schedule; resumes from the work folder's ``last.pt`` after an interruption.
-4. **Export** of the best epoch (by IoU on the held-out real scans against their automatic labels), the moving
-   threshold recalibrated on them, and the adaptation recorded in the model's metadata.
+4. **Export** of the best epoch (by IoU on the held-out real scans against their automatic labels, and on held-out
+   simulated drives, so that the automatic labels alone do not set it), the moving threshold recalibrated on the same
+   scans, and the adaptation recorded in the model's metadata.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ class AdaptConfig:
     holdout: float = 0.25  # the last share of each drive's scans, never trained on
     sim_drives: int = 4  # simulated drives of the same sensor mixed in ...
     sim_scans: int = 60  # ... of this many scans each
+    sim_holdout: int = 2  # and simulated drives held out beside the real scans (epoch and threshold)
     sim_seed: int = 700  # never used by the suite (9xxx) or the recipes (100)
     lr: float = 3e-4
     batch_size: int = 8
@@ -53,9 +55,10 @@ class AdaptConfig:
     max_minutes: float = 50.0
 
     def __post_init__(self) -> None:
-        for name in ("epochs", "sim_drives", "sim_scans", "batch_size", "crop_width"):
+        for name in ("epochs", "sim_drives", "sim_scans", "sim_holdout", "batch_size", "crop_width"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < (0 if name == "sim_drives" else 1):
+            if isinstance(value, bool) or not isinstance(value, int) or value < (
+                    0 if name in ("sim_drives", "sim_holdout") else 1):
                 raise ConfigError(f"adapt: {name} must be a positive integer, got {value!r}")
         for name in ("holdout", "lr", "max_minutes"):
             value = getattr(self, name)
@@ -91,7 +94,8 @@ class AdaptPlan:
         return self.config.sim_drives * self.config.sim_scans
 
     def expected_minutes(self) -> float:
-        prepared = sum(d.scans for d in self.drives) * 2 + self.sim_train  # autolabel + cache; simulate + cache
+        prepared = (sum(d.scans for d in self.drives) * 2  # autolabel + cache
+                    + self.sim_train + self.config.sim_holdout * self.config.sim_scans)  # simulate + cache
         samples = (self.real_train + self.sim_train) * self.config.epochs
         return (prepared * SECONDS_PER_PREPARED_SCAN + samples * SECONDS_PER_SAMPLE) / 60.0
 
@@ -101,7 +105,7 @@ class AdaptPlan:
         for d in self.drives:
             lines.append(f"  {d.name}: {d.scans} scans: train on {d.train}, hold out the last {d.holdout}")
         lines.append(f"  + {self.config.sim_drives} simulated {self.sensor.name} drives x {self.config.sim_scans} "
-                     f"scans (seed {self.config.sim_seed})")
+                     f"scans (seed {self.config.sim_seed}) to train on, {self.config.sim_holdout} held out")
         lines.append(f"{self.config.epochs} epochs x {self.real_train + self.sim_train} scans (crops "
                      f"{self.config.crop_width} columns), about {self.expected_minutes():.0f} minutes on 2 cores "
                      f"(at most {self.config.max_minutes:g} of training)")
@@ -210,22 +214,21 @@ def prepare_real(drive, sensor: SensorConfig, work: Path, plan: DrivePlan,
 
 
 def prepare_simulated(sensor: SensorConfig, work: Path, config: AdaptConfig,
-                      progress: Callable[[str, int], None]) -> list[str]:
-    """Simulated drives of the same sensor (instant labels, randomised sensor effects), written once."""
+                      progress: Callable[[str, int], None]) -> tuple[list[str], list[str]]:
+    """Simulated drives of the same sensor (instant labels, randomised sensor effects), written once: (to train on,
+    held out)."""
     from ros2_mos.sim import sim_preset, simulate_sequence
     from ros2_mos.sim.presets import randomized_for_sequence
 
-    names = []
     presets = ("benchmark", "traffic_jam", "easy")
-    for i in range(config.sim_drives):
-        name = f"sim{i:02d}"
-        names.append(name)
+    names = [f"sim{i:02d}" for i in range(config.sim_drives)] + [f"simv{i}" for i in range(config.sim_holdout)]
+    for i, name in enumerate(names):
         if (work / "data" / "sequences" / name / "poses.txt").is_file():
             continue
         preset = randomized_for_sequence(sim_preset(presets[i % len(presets)]), config.sim_seed, name)
         simulate_sequence(work / "data", name, config.sim_scans, preset, config.sim_seed + i, sensor,
                           progress=lambda n: progress("simulate", n), convention="instant")
-    return names
+    return names[: config.sim_drives], names[config.sim_drives:]
 
 
 @dataclass
@@ -257,7 +260,8 @@ def adapt(drives: list, out: Path, plan: AdaptPlan, work: Path,
         a, b = prepare_real(drive, plan.sensor, work, drive_plan, progress)
         train.append(a)
         holdout.append(b)
-    sim = prepare_simulated(plan.sensor, work, cfg, progress)
+    sim, sim_holdout = prepare_simulated(plan.sensor, work, cfg, progress)
+    holdout += sim_holdout
     recipe = TrainConfig.from_yaml(plan.base_config)
     train_config = dataclasses.replace(
         recipe, name=f"{recipe.name}-adapted", train_sequences=train + sim, valid_sequences=holdout,
