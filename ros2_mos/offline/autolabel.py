@@ -40,6 +40,9 @@ from ros2_mos.offline.visibility import SeenScan
 
 #: Fewer scans give no future or past to compare with.
 MIN_SCANS = 2
+#: Every this many scans, the scan is checked against the sensor (rings and field of view; ~20 ms for a 64-beam
+#: scan): a drive of mixed sensors is refused before anything is written.
+SENSOR_CHECK_EVERY = 10
 #: The first RESTART_FROM scans' poses come from a second KISS-ICP pass over the first RESTART_SCANS scans that
 #: starts with the velocity the first pass found at scan RESTART_FROM (:meth:`AutoLabeler._restart`).
 RESTART_FROM = 8
@@ -103,7 +106,7 @@ class AutoLabeler:
 
     # -- the steps -------------------------------------------------------------------------------------------
     def label(self, drive: Drive, workdir: Path, progress: ProgressFn = lambda stage, n: None) -> AutolabelResult:
-        """Run steps 1-3 over ``drive``; per-scan object ids are kept in ``workdir`` for :meth:`write`."""
+        """Run steps 1-3 over ``drive``; per-scan object ids are kept in ``workdir`` for :func:`scan_labels`."""
         n = len(drive)
         if n < MIN_SCANS:
             raise DatasetError(f"{drive.name}: {n} scan(s); autolabel needs at least {MIN_SCANS} (past and future)")
@@ -126,7 +129,7 @@ class AutoLabeler:
         for scan in drive:
             if len(scan.points) == 0:
                 raise DatasetError(f"{drive.name} scan {scan.index}: no finite points")
-            problem = mismatch_message(scan.points, self.sensor) if scan.index % 10 == 0 else None
+            problem = mismatch_message(scan.points, self.sensor) if scan.index % SENSOR_CHECK_EVERY == 0 else None
             if problem:
                 raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")
             if odometry is not None:
