@@ -91,3 +91,23 @@ def test_a_registration_past_its_first_slice_sleeps_between_slices(monkeypatch):
         # none before the first check (slice 2), one before each slice after it
         assert naps == [odometry.ICP_YIELD_S] * max(0, slices - 2), (slices, naps)
     assert max(counts) >= 3, f"no registration went past its second slice: {counts}"
+
+
+def test_assume_motion_starts_the_motion_model_and_refuses_garbage():
+    import numpy as np
+    import pytest
+
+    from ros2_mos.core.config import OdometryConfig
+    from ros2_mos.core.errors import ConfigError
+    from ros2_mos.core.odometry import KissIcpOdometry
+
+    odometry = KissIcpOdometry(OdometryConfig())
+    delta = np.eye(4)
+    delta[0, 3] = 0.8
+    odometry.assume_motion(delta)
+    rng = np.random.default_rng(0)
+    first = odometry.estimate(rng.uniform(-20, 20, (5000, 3)))  # an empty map: the prediction stands
+    assert np.allclose(first[:3, 3], [0.8, 0.0, 0.0])
+    for bad in (np.eye(3), np.full((4, 4), np.nan)):
+        with pytest.raises(ConfigError):
+            odometry.assume_motion(bad)

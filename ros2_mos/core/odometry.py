@@ -76,6 +76,13 @@ class KissIcpOdometry:
         self._kiss = self._kiss_class(self._kiss_config)
         self._pending_frame = None
 
+    def assume_motion(self, delta: np.ndarray) -> None:
+        """Start the motion model at ``delta`` (4x4, the motion from one scan to the next) instead of at rest."""
+        delta = np.asarray(delta, np.float64)
+        if delta.shape != (4, 4) or not np.isfinite(delta).all():
+            raise ConfigError(f"assume_motion needs a finite 4x4 transform, got shape {delta.shape}")
+        self._kiss.last_delta = delta.copy()
+
     def estimate(self, points: np.ndarray, timestamps: np.ndarray | None = None) -> np.ndarray:
         """Register a scan against the local map and return its world pose, without updating the map.
 

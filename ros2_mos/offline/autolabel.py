@@ -156,7 +156,7 @@ class AutoLabeler:
         if n <= RESTART_SCANS:
             return poses
         odometry = KissIcpOdometry(self.odometry_config)
-        odometry._kiss.last_delta = np.linalg.inv(poses[RESTART_FROM]) @ poses[RESTART_FROM + 1]
+        odometry.assume_motion(np.linalg.inv(poses[RESTART_FROM]) @ poses[RESTART_FROM + 1])
         again = []
         for scan in drive:
             if scan.index >= RESTART_SCANS:
