@@ -87,16 +87,21 @@ def check_threshold(value: object, what: str = "threshold") -> float:
     return float(value)
 
 
-def write_recommended_threshold(path: str | Path, threshold: float) -> None:
-    """Store ``recommended_threshold`` in an exported model's metadata (atomically replaces the file)."""
+def _load_model(path: Path, external_data: bool = True) -> Any:
+    """The ONNX model proto of ``path``, or a ModelError saying why it cannot be read."""
     import onnx
 
-    threshold = check_threshold(threshold, "recommended_threshold")
-    path = Path(path)
     try:
-        proto = onnx.load(str(path))
+        return onnx.load(str(path), load_external_data=external_data)
     except Exception as exc:  # onnx raises several types for unreadable files
         raise ModelError(f"cannot read model {path}: {exc}") from None
+
+
+def write_recommended_threshold(path: str | Path, threshold: float) -> None:
+    """Store ``recommended_threshold`` in an exported model's metadata (atomically replaces the file)."""
+    threshold = check_threshold(threshold, "recommended_threshold")
+    path = Path(path)
+    proto = _load_model(path)
     entry = next((p for p in proto.metadata_props if p.key == METADATA_KEY), None)
     if entry is None:
         raise ModelError(f"{path} has no {METADATA_KEY} metadata (not exported by ros2-mos export)")
@@ -108,27 +113,17 @@ def write_recommended_threshold(path: str | Path, threshold: float) -> None:
 
 def read_training_config(path: str | Path) -> str | None:
     """The training config a model names in its ``training_config`` metadata entry; None if it names none."""
-    import onnx
-
-    try:
-        proto = onnx.load(str(path), load_external_data=False)
-    except Exception as exc:  # onnx raises several types for unreadable files
-        raise ModelError(f"cannot read model {path}: {exc}") from None
+    proto = _load_model(Path(path), external_data=False)
     return next((p.value for p in proto.metadata_props if p.key == TRAINING_CONFIG_KEY), None)
 
 
 def write_training_config(path: str | Path, config: str | Path) -> None:
     """Name the training config that made a model (atomically replaces the file; nothing else changes)."""
-    import onnx
-
     config = Path(config).as_posix()
     if not config or config == ".":
         raise ModelError("training_config must be a non-empty path")
     path = Path(path)
-    try:
-        proto = onnx.load(str(path))
-    except Exception as exc:  # onnx raises several types for unreadable files
-        raise ModelError(f"cannot read model {path}: {exc}") from None
+    proto = _load_model(path)
     entry = next((p for p in proto.metadata_props if p.key == TRAINING_CONFIG_KEY), None)
     if entry is None:
         entry = proto.metadata_props.add()
