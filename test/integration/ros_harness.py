@@ -170,3 +170,24 @@ def child_env(domain_id: int, large_messages: bool = False) -> dict[str, str]:
 def executable(name: str) -> str:
     """A console script of this environment (mos_node, ros2-mos)."""
     return str(Path(sys.executable).parent / name)
+
+
+def run_node_until_ready(ros_args: list[str], env: dict[str, str], ready_timeout: float = 30.0) -> tuple[int, str]:
+    """Start ``mos_node --ros-args ROS_ARGS``, stop it with SIGINT once it says it is ready (or at the timeout, or let
+    it exit by itself); returns its exit code and everything it printed."""
+    import signal
+    import subprocess
+
+    node = subprocess.Popen([executable("mos_node"), "--ros-args", *ros_args], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + ready_timeout
+    while node.poll() is None and not any("ready in" in line for line in lines) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if node.poll() is None:
+        node.send_signal(signal.SIGINT)
+    code = node.wait(timeout=15)
+    reader.join(5)
+    return code, "".join(lines)

@@ -24,6 +24,7 @@ from ros_harness import (  # noqa: E402
     executable,
     harness_fixture,
     isolate_ros,
+    run_node_until_ready,
     sequence_fixture,
 )
 
@@ -428,21 +429,9 @@ def test_node_and_commands_read_a_params_file_alike(tmp_path, tiny_model_path):
     with pytest.raises(ConfigError, match="no parameters for node '/mos_node'"):
         load_params_file(foreign)
     for path, ok in ((exponent, True), (foreign, False)):
-        node = subprocess.Popen([executable("mos_node"), "--ros-args", "--params-file", str(path)],
-                                env=_env(DOMAIN + 3), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        lines: list[str] = []
-        reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)
-        reader.start()
-        deadline = time.monotonic() + 20
-        while node.poll() is None and not any("ready in" in line for line in lines) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        if node.poll() is None:
-            node.send_signal(signal.SIGINT)
-        code = node.wait(timeout=15)
-        reader.join(5)
-        out = "".join(lines)
+        code, out = run_node_until_ready(["--params-file", str(path)], _env(DOMAIN + 3), ready_timeout=20)
         assert "Traceback" not in out, out
         if ok:
-            assert code == 0 and any("ready in" in line for line in lines), out
+            assert code == 0 and "ready in" in out, out
         else:
             assert code == 1 and "cannot start" in out and "no parameters for node '/mos_node'" in out, out

@@ -4,10 +4,6 @@ them (namespaces, wildcards), and settings refused at start-up (issue 32, items 
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import threading
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -17,7 +13,7 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from rclpy.parameter import Parameter  # noqa: E402
-from ros_harness import child_env, executable, isolate_ros  # noqa: E402
+from ros_harness import child_env, isolate_ros, run_node_until_ready  # noqa: E402
 
 from ros2_mos.core.errors import ConfigError  # noqa: E402
 
@@ -98,20 +94,8 @@ def test_sections_reach_the_node_exactly_as_rcl_applies_them(tmp_path):
                     read_params_file(path, node)
 
 
-def _run_node(args: list[str], domain: int, stop_when_ready: bool = True) -> tuple[int, str]:
-    node = subprocess.Popen([executable("mos_node"), "--ros-args", *args], env=child_env(domain),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)
-    reader.start()
-    deadline = time.monotonic() + 30
-    while node.poll() is None and not any("ready in" in line for line in lines) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    if node.poll() is None:
-        node.send_signal(signal.SIGINT)
-    code = node.wait(timeout=15)
-    reader.join(5)
-    return code, "".join(lines)
+def _run_node(args: list[str], domain: int) -> tuple[int, str]:
+    return run_node_until_ready(args, child_env(domain))
 
 
 def test_a_namespaced_node_reads_its_section_and_names_itself(tmp_path, tiny_model_path):
