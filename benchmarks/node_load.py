@@ -45,7 +45,15 @@ def subscriber(out: str) -> None:
         sink.write(f"{stamp_ns(msg.header.stamp)} {clock.now().nanoseconds}\n")
 
     node.create_subscription(MessageTypes.rclpy().point_cloud2, "/mos/labels", on_labels, QoSProfile(depth=10))
-    rclpy.spin(node)
+    from rclpy.executors import ExternalShutdownException
+
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):  # SIGTERM/SIGINT at the end of a run
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 def one_run(bag: Path, scans: int, rate: float, node_params: list[str]) -> dict:
