@@ -12,8 +12,8 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, ImageDraw
 
+from ros2_mos.apps.mapping import side_by_side
 from ros2_mos.io.labels import MOVING, to_moving_classes
 from ros2_mos.io.semantic_kitti import read_label, read_scan
 
@@ -52,15 +52,7 @@ def main() -> None:
         moving = to_moving_classes(labels) == MOVING
         panels.append(panel(points, moving, args.half_width, args.resolution))
         titles.append(f"{title or root}: {100 * moving.mean():.2f} % moving")
-    gap, head = 8, 20
-    h, w = panels[0].shape[:2]
-    canvas = np.full((h + head, len(panels) * (w + gap) - gap, 3), 255, np.uint8)
-    for i, p in enumerate(panels):
-        canvas[head:, i * (w + gap): i * (w + gap) + w] = p
-    image = Image.fromarray(canvas)
-    draw = ImageDraw.Draw(image)
-    for i, t in enumerate(titles):
-        draw.text((i * (w + gap) + 4, 4), f"{args.sequence.name} scan {args.scan}, {t}", fill=(0, 0, 0))
+    image = side_by_side(panels, [f"{args.sequence.name} scan {args.scan}, {t}" for t in titles])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     image.save(args.out)
     print(f"wrote {args.out}")

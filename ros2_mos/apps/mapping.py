@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -432,6 +432,21 @@ def bev_image(
     return img
 
 
+def side_by_side(panels: list[np.ndarray], titles: list[str], title_height: int = 24, gap: int = 8) -> Any:
+    """Equal-sized (H, W, 3) uint8 pictures in a row on white, each with its title above it: a PIL image."""
+    from PIL import Image, ImageDraw
+
+    h, w = panels[0].shape[:2]
+    canvas = np.full((h + title_height, len(panels) * w + (len(panels) - 1) * gap, 3), 255, np.uint8)
+    for i, panel in enumerate(panels):
+        canvas[title_height:, i * (w + gap) : i * (w + gap) + w] = panel
+    image = Image.fromarray(canvas)
+    draw = ImageDraw.Draw(image)
+    for i, title in enumerate(titles):
+        draw.text((i * (w + gap) + 6, 6), title, fill=(0, 0, 0))
+    return image
+
+
 def write_bev_png(
     path: str | Path,
     maps: dict[str, VoxelMap],
@@ -444,7 +459,7 @@ def write_bev_png(
     objects (where labels exist) are drawn red so that ghosts are easy to see.
     """
     try:
-        from PIL import Image, ImageDraw
+        import PIL  # noqa: F401
     except ImportError:  # pragma: no cover - pillow is in requirements.txt
         raise ConfigError("writing a PNG needs pillow (pip install pillow)") from None
     if not maps:
@@ -457,16 +472,7 @@ def write_bev_png(
     resolution = max(float((hi - lo).max()) / max_pixels, 0.05)
     extent = (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
     panels = [bev_image(m, extent, resolution) for m in maps.values()]
-    title = 24
-    gap = 8
-    h, w = panels[0].shape[:2]
-    canvas = np.full((h + title, len(panels) * w + (len(panels) - 1) * gap, 3), 255, np.uint8)
-    for i, panel in enumerate(panels):
-        canvas[title:, i * (w + gap) : i * (w + gap) + w] = panel
-    image = Image.fromarray(canvas)
-    draw = ImageDraw.Draw(image)
-    for i, name in enumerate(maps):
-        draw.text((i * (w + gap) + 6, 6), f"{name}  ({len(maps[name])} points, {resolution:.2f} m/px)", fill=(0, 0, 0))
+    image = side_by_side(panels, [f"{name}  ({len(m)} points, {resolution:.2f} m/px)" for name, m in maps.items()])
     path = Path(path)
     with atomic_path(path) as tmp:
         image.save(tmp, format="PNG")
