@@ -14,7 +14,7 @@ from ros2_mos.cli import app
 from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.io.labels import instance_ids, semantic_ids
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence
-from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, scan_labels
+from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, scan_labels
 from ros2_mos.offline.drives import FolderDrive
 from ros2_mos.offline.objects import find_objects, local_ground, voxel_clusters
 from ros2_mos.offline.visibility import neighbourhood_min
@@ -96,6 +96,20 @@ def test_config_is_checked():
     AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0))  # zero where zero means something
 
 
+def test_box_shift_counts_only_what_both_edges_agree_on():
+    lo, hi = np.array([[0.0, 0.0]]), np.array([[4.0, 2.0]])
+    cases = [  # (lo1, hi1, expected): rigid move; grown on one side; moved and grown; grown both ways; shrunk
+        ((1.0, 0.5), (5.0, 2.5), (1.0, 0.5)),
+        ((0.0, 0.0), (5.0, 2.0), (0.0, 0.0)),
+        ((1.0, -0.2), (6.0, -0.5), (1.0, -0.2)),
+        ((-0.5, -0.3), (4.5, 2.3), (0.0, 0.0)),
+        ((0.5, 0.0), (4.0, 1.0), (0.0, 0.0)),
+    ]
+    for lo1, hi1, expected in cases:
+        got = box_shift(lo, hi, np.array([lo1]), np.array([hi1]))
+        np.testing.assert_allclose(got, [expected])
+
+
 # -- hand-made drives -------------------------------------------------------------------------------------------
 def test_a_car_that_waits_then_drives_is_moving_throughout_in_semantickitti_and_only_while_driving_in_instant(
         tmp_path):
@@ -107,6 +121,19 @@ def test_a_car_that_waits_then_drives_is_moving_throughout_in_semantickitti_and_
     for k in (30, 38):
         assert share(k, 7, "semantickitti") > 0.6 and share(k, 7, "instant") > 0.6
     assert max(others(k, 7, "semantickitti") for k in range(50)) == 0
+
+
+def test_a_car_that_waits_while_the_sensor_passes_it_closely_is_static_then_in_instant(tmp_path):
+    # Arrives at 0.8 m per scan, waits at (20, 3) from scan 12 to 40 while the sensor drives past 2 m beside it (its
+    # visible part, and so its centroid, slides as the view turns), then drives on.
+    def path(k: int) -> tuple[float, float]:
+        return (20.0 - 0.8 * max(0, 12 - k) + 0.8 * max(0, k - 40), 3.0)
+
+    car = Mover((4.5, 1.8, 1.5), path, 7)
+    seq, share, others, _ = label_scene(tmp_path, 52, lambda k: 0.8 * k, [car])
+    for k in range(18, 35, 2):  # waiting, more than 5 scans from either motion, while the sensor passes (x 14-28)
+        assert share(k, 7, "instant") < 0.05, k
+        assert share(k, 7, "semantickitti") > 0.6, k
 
 
 def test_a_pedestrian_who_stops_beside_a_wall(tmp_path):

@@ -47,6 +47,9 @@ SENSOR_CHECK_EVERY = 10
 #: starts with the velocity the first pass found at scan RESTART_FROM (:meth:`AutoLabeler._restart`).
 RESTART_FROM = 8
 RESTART_SCANS = 14
+#: How the instant convention measures an object's motion between observations: the box edges that moved together
+#: (:func:`box_shift`), or the centroid (slides while the sensor passes a standing object).
+INSTANT_MOTION = ("box", "centroid")
 
 
 @dataclass(frozen=True)
@@ -60,8 +63,9 @@ class AutolabelConfig:
     #: An observation of a mover moves now when this share of its points was seen through by a near scan ...
     instant_seen_through: float = 0.3
     #: ... or its track's centroid moved this fast (m/s) over the observations ``instant_span`` before and after it.
-    instant_speed: float = 0.6
-    instant_span: int = 3
+    instant_speed: float = 0.4
+    instant_span: int = 5
+    instant_motion: str = "box"
     instant_context: int = 10  # observations
     #: An observation of a mover is moving (SemanticKITTI's convention) only where its box, grown by this many
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
@@ -72,6 +76,9 @@ class AutolabelConfig:
         offsets = (*self.near_offsets, *self.far_offsets)
         if not offsets or 0 in offsets:
             raise ConfigError("autolabel: offsets must be non-zero scan offsets")
+        if self.instant_motion not in INSTANT_MOTION:
+            raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
+                              f"{self.instant_motion!r}")
         check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin"),
                       at_most_one=("instant_seen_through",))
 
@@ -232,14 +239,20 @@ class AutoLabeler:
         out = set()
         for tid in result.movers:
             obs = result.tracker.tracks[tid].observations
-            c = np.array([o.centroid[:2] for o in obs])
             t = result.stamps[[o.scan for o in obs]]
             m = len(obs)
             index = np.arange(m)
             before = np.maximum(index - cfg.instant_span, 0)
             after = np.minimum(index + cfg.instant_span, m - 1)
             dt = np.maximum(t[after] - t[before], 1e-3)
-            speed = np.where(after > before, np.linalg.norm(c[after] - c[before], axis=1) / dt, 0.0)
+            if cfg.instant_motion == "box":
+                lo = np.array([o.lo[:2] for o in obs])
+                hi = np.array([o.hi[:2] for o in obs])
+                shift = box_shift(lo[before], hi[before], lo[after], hi[after])
+            else:
+                c = np.array([o.centroid[:2] for o in obs])
+                shift = c[after] - c[before]
+            speed = np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
             near = np.array([o.near >= cfg.instant_seen_through for o in obs])
             seen = np.flatnonzero([o.far >= cfg.tracks.seen_through for o in obs])
             context = (np.abs(index[:, None] - seen[None, :]) <= cfg.instant_context).any(axis=1) if len(seen) \
@@ -273,6 +286,19 @@ class AutoLabeler:
             else:
                 moving[j] = (scan, j) in result.moving_now
         return moving
+
+
+def box_shift(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray) -> np.ndarray:
+    """(M, D) how far boxes moved from (lo0, hi0) to (lo1, hi1), per axis, counting only what both edges agree on.
+
+    A standing object's visible box grows or shrinks as the view changes, one edge at a time, and its centroid
+    slides with it; a moving one carries both edges along. Per axis: where both edges moved the same way, the
+    smaller of the two moves; where they moved apart (or one stayed), nothing.
+    """
+    d_lo = lo1 - lo0
+    d_hi = hi1 - hi0
+    same_way = np.sign(d_lo) == np.sign(d_hi)
+    return np.where(same_way, np.where(np.abs(d_lo) < np.abs(d_hi), d_lo, d_hi), 0.0)
 
 
 def scan_labels(labeler: AutoLabeler, result: AutolabelResult, workdir: Path, scan: int,
