@@ -7,9 +7,11 @@ Per run: a fresh ``mos_node`` (the shipped default model, its own large-message 
 driver (publishes the bench bag's clouds, reliable, restamped at publication, in a loop if ``--scans`` is longer
 than the bag); a third process subscribes to ``/mos/labels`` with default settings (reliable, depth 10) and notes
 when each labelled cloud arrives. 5 warm-up clouds go first at 2 Hz, then a pause longer than ``reset_after_gap``;
-they are not counted. ``--busy K`` keeps K more processes spinning on the CPU during the runs (another program on
-the robot). Prints one Markdown row per run: clouds published, labels the subscriber got, latency stamp ->
-/mos/labels, and what the node's /diagnostics said (dropped, capacity, mean ms of the main stages). ``--ab``
+they are not counted, and the timed clouds continue the bag after them. ``--busy K`` keeps K more processes
+spinning on the CPU during the runs (another program on the robot). Prints one Markdown row per run: clouds
+published, labels the subscriber got (and which clouds got none), latency stamp ->
+/mos/labels, what the node's /diagnostics said (dropped, capacity, mean ms of the main stages), and the CPU time
+each of the three processes spent per published cloud while the clouds were sent (from /proc). ``--ab``
 alternates the runs between the node's settings (A) and these changed (B): a same-run A/B.
 """
 
@@ -26,6 +28,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Clouds sent at 2 Hz before the timed ones (not counted); the timed clouds continue the bag after them.
+WARM_UP = 5
 
 
 def subscriber(out: str) -> None:
@@ -56,6 +60,12 @@ def subscriber(out: str) -> None:
         rclpy.try_shutdown()
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds a process has used so far (Linux /proc; its threads included)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def one_run(bag: Path, scans: int, rate: float, node_params: list[str]) -> dict:
     from ros2_mos.io.bags import pointcloud_topic
     from ros2_mos.ros.replayer import Replayer
@@ -72,13 +82,20 @@ def one_run(bag: Path, scans: int, rate: float, node_params: list[str]) -> dict:
             if not replayer.wait_for_subscriber(60.0):
                 raise RuntimeError("mos_node did not subscribe in 60 s:\n" + "".join(node.log[-20:]))
             time.sleep(2.0)  # the subscriber's discovery
-            replayer.play(bag, topic, rate=0.2, max_messages=5, restamp=True)  # warm-up at 2 Hz (rate x 10 Hz)
+            replayer.play(bag, topic, rate=0.2, max_messages=WARM_UP, restamp=True)  # warm-up at 2 Hz (rate x 10 Hz)
             time.sleep(2.5)
             replayer.published_stamps.clear()
-            sent = 0
+            pids = {"node": node.process.pid, "subscriber": sub.pid, "driver": os.getpid()}
+            cpu0 = {k: cpu_seconds(v) for k, v in pids.items()}
+            # The timed clouds go on from where the warm-up stopped (the odometry is kept over the pause, so a jump
+            # back to the bag's start would cost the first scans extra ICP iterations); a longer run loops the bag.
+            sent = replayer.play(bag, topic, rate=rate / 10.0, restamp=True, max_messages=scans, start=WARM_UP)
             while sent < scans:
                 sent += replayer.play(bag, topic, rate=rate / 10.0, restamp=True, max_messages=scans - sent)
-            stamps = set(replayer.published_stamps)
+            time.sleep(0.3)  # the last cloud's labels
+            cpu_ms = {k: (cpu_seconds(v) - cpu0[k]) * 1e3 / max(sent, 1) for k, v in pids.items()}
+            order = list(replayer.published_stamps)
+            stamps = set(order)
             time.sleep(3.0)  # the last labels, and one more diagnostics period
             diag = dict(replayer.last_diagnostic_values)
         finally:
@@ -87,7 +104,10 @@ def one_run(bag: Path, scans: int, rate: float, node_params: list[str]) -> dict:
             sub.wait(timeout=10)
         got = [tuple(map(int, line.split())) for line in out.read_text().splitlines()] if out.is_file() else []
     latency = [(t - s) * 1e-6 for s, t in got if s in stamps]
-    return {"sent": len(stamps), "labels": len(latency), "latency": latency, "diag": diag}
+    labelled = {s for s, _ in got}
+    missed = [i for i, s in enumerate(order) if s not in labelled]
+    return {"sent": len(stamps), "labels": len(latency), "latency": latency, "diag": diag, "cpu_ms": cpu_ms,
+            "missed": missed}
 
 
 def main() -> None:
@@ -126,9 +146,12 @@ def main() -> None:
                                                                              "total") if f"{k}_ms_mean" in d)
             tag = " B" if b else (" A" if args.ab else "")
             share = 100 * r["labels"] / max(r["sent"], 1)
-            rows.append(f"| {run + 1}{tag} | {r['sent']} | **{r['labels']}** ({share:.0f} "
-                        f"%) | {np.median(lat):.0f} / {np.percentile(lat, 95):.0f} | {d.get('dropped', '?')} | "
-                        f"{d.get('capacity_hz', '?')} | {stages} |")
+            missed = ", ".join(map(str, r["missed"][:8])) + (" ..." if len(r["missed"]) > 8 else "")
+            missed = f" (missed: {missed})" if missed else ""
+            rows.append(f"| {run + 1}{tag} | {r['sent']} | **{r['labels']}** ({share:.0f} %){missed} | "
+                        f"{np.median(lat):.0f} / {np.percentile(lat, 95):.0f} | {d.get('dropped', '?')} | "
+                        f"{d.get('capacity_hz', '?')} | {stages} | "
+                        + " / ".join(f"{r['cpu_ms'][k]:.0f}" for k in ("driver", "node", "subscriber")) + " |")
             print(rows[-1], file=sys.stderr, flush=True)
     finally:
         for p in busy:
@@ -138,8 +161,9 @@ def main() -> None:
           f"{args.node_param or 'defaults'}{f'; B runs also {args.ab}' if args.ab else ''}; {os.cpu_count()} cores, "
           f"load average {os.getloadavg()[0]:.1f}")
     print("| run | published | labels at the subscriber | latency stamp -> /mos/labels median / p95 (ms) | "
-          "node dropped (incl. warm-up) | node capacity (Hz) | node mean ms |")
-    print("|---|---|---|---|---|---|---|")
+          "node dropped (incl. warm-up) | node capacity (Hz) | node mean ms | CPU ms per cloud: driver / node / "
+          "subscriber |")
+    print("|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))
 
 

@@ -135,3 +135,29 @@ def test_mcap_chunks_carry_crcs_so_damage_inside_them_is_an_error(tmp_path: Path
     mcap.write_bytes(bytes(raw))
     with pytest.raises(DatasetError):
         list(iter_pointclouds(bag))
+
+
+def test_replayer_start_skips_the_first_clouds_of_the_first_pass_only(tmp_path):
+    """Replayer.play(start=k): the bag's first k clouds are skipped once; a loop then begins at the first cloud."""
+    import rclpy
+
+    from ros2_mos.ros.replayer import Replayer
+    from ros2_mos.tools.harness import isolate_ros_domain
+
+    scans = _scans(4, n=50)
+    write_scans_bag(tmp_path / "b", iter(scans))
+    isolate_ros_domain()
+    rclpy.init()
+    try:
+        replayer = Replayer("/points", reliable=False)
+        try:
+            assert replayer.play(tmp_path / "b", "/points", rate=0, start=2) == 2
+            assert replayer.play(tmp_path / "b", "/points", rate=0, start=3, loop=True, max_messages=3) == 3
+            with pytest.raises(ValueError, match="start"):
+                replayer.play(tmp_path / "b", "/points", rate=0, start=-1)
+        finally:
+            replayer.close()
+    finally:
+        rclpy.try_shutdown()
+    stamps = [s for s, _, _ in scans]
+    assert replayer.published_stamps == [stamps[2], stamps[3], stamps[3], stamps[0], stamps[1]]

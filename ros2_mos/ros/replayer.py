@@ -76,19 +76,27 @@ class Replayer:
 
     def play(self, bag: str | Path, bag_topic: str, *, rate: float = 1.0, loop: bool = False,
              sync_timeout: float = 5.0, max_messages: int = 0, restamp: bool = False,
-             sync: bool | None = None) -> int:
+             sync: bool | None = None, start: int = 0) -> int:
         """Publish the clouds of ``bag_topic``; returns how many were published.
+
+        ``start`` skips the bag's first clouds (on the first pass; a ``loop`` starts again from the first).
 
         ``restamp`` gives each cloud the wall-clock time of its publication, as a live driver
         would, so that subscribers can measure stamp-to-output latency.  ``sync`` overrides
         lock-step for this call (it needs the ``sync_topic`` given at construction).
         """
         lock_step = self._sync if sync is None else (sync and self._sync)
+        if start < 0:
+            raise ValueError(f"start must be >= 0, got {start}")
         sent = 0
+        skip = start
         while True:
             start_wall: float | None = None
             start_bag = 0
             for _, bag_time, msg in iter_messages(bag, [bag_topic]):
+                if skip:
+                    skip -= 1
+                    continue
                 if start_wall is None:
                     start_wall, start_bag = time.monotonic(), bag_time
                 elif rate > 0:
@@ -109,6 +117,7 @@ class Replayer:
                     return sent
             if not loop or sent == 0:
                 return sent
+            skip = 0
 
     def close(self) -> None:
         """Let reliable messages be acknowledged, then stop spinning and destroy the node."""
