@@ -110,6 +110,30 @@ def test_box_shift_counts_only_what_both_edges_agree_on():
         np.testing.assert_allclose(got, [expected])
 
 
+def test_a_track_does_not_jump_onto_an_object_many_times_its_size():
+    from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
+
+    def obs(scan: int, x: float, size: tuple[float, float]) -> Observation:
+        centre = np.array([x, 3.0, 0.8])
+        half = np.array([size[0] / 2, size[1] / 2, 0.7])
+        return Observation(scan, 0, centre, 100, centre - half, centre + half, 0.0, 0.0)
+
+    # a 2 x 0.8 m mover at 5 m/s, then, where it would be next, a 16 x 9 m hedge (area ratio 90)
+    scans = [[obs(0, 0.0, (2.0, 0.8))], [obs(1, 0.5, (2.0, 0.8))], [obs(2, 1.2, (16.0, 9.0))]]
+    for ratio, tracks in ((4.0, 2), (1e9, 1)):
+        tracker = Tracker(TrackConfig(max_area_ratio=ratio))
+        for k, observations in enumerate(scans):
+            tracker.add_scan(k, 0.1 * k, 0.1 * (k - 1) if k else None, observations)
+        assert len(tracker.tracks) == tracks
+    # a car coming into view, its box growing 2.5x in a scan, stays one track
+    tracker = Tracker(TrackConfig())
+    for k, length in enumerate((1.0, 2.5, 4.5)):
+        tracker.add_scan(k, 0.1 * k, 0.1 * (k - 1) if k else None, [obs(k, 0.3 * k, (length, 1.8))])
+    assert len(tracker.tracks) == 1
+    with pytest.raises(ConfigError, match="max_area_ratio"):
+        TrackConfig(max_area_ratio=0.5)
+
+
 # -- hand-made drives -------------------------------------------------------------------------------------------
 def test_a_car_that_waits_then_drives_is_moving_throughout_in_semantickitti_and_only_while_driving_in_instant(
         tmp_path):

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ros2_mos.core.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class TrackConfig:
@@ -28,11 +30,16 @@ class TrackConfig:
     min_moving_observations: int = 2
     moving_share: float = 0.2  # ... and at least this share of the track's observations,
     min_evidence_travel: float = 1.5  # m: or seen-through observations this far apart (it waited long, then left)
+    #: An observation whose footprint (box area) is this many times larger or smaller than the track's last one
+    #: does not continue it: a track that lost its mover must not jump onto the hedge or the row of cars beside it.
+    max_area_ratio: float = 4.0
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
 
         check_numbers(self, "autolabel tracks", zero_ok=("moving_share",), at_most_one=("seen_through", "moving_share"))
+        if self.max_area_ratio < 1.0:
+            raise ConfigError(f"autolabel tracks: max_area_ratio must be >= 1, got {self.max_area_ratio!r}")
 
 
 @dataclass
@@ -78,6 +85,16 @@ class Track:
         return float((np.linalg.norm(c[window:] - c[:-window], axis=1) / dt).max())
 
 
+#: Footprints are measured from this size up (m per side): a pole's or a flat object's box has next to no area.
+MIN_FOOTPRINT_SIDE = 0.5
+
+
+def footprint(obs: Observation) -> float:
+    """The area (m^2) of an observation's box seen from above, each side at least ``MIN_FOOTPRINT_SIDE``."""
+    side = np.maximum(obs.size[:2], MIN_FOOTPRINT_SIDE)
+    return float(side[0] * side[1])
+
+
 class Tracker:
     """Greedy nearest-neighbour association of each scan's observations to the live tracks."""
 
@@ -99,6 +116,10 @@ class Tracker:
             cents = np.array([o.centroid[:2] for o in observations])
             dist = np.linalg.norm(predicted[:, None, :] - cents[None, :, :], axis=-1)
             dist[dist > gates[:, None]] = np.inf
+            areas = np.array([footprint(o) for o in observations])
+            last_areas = np.array([footprint(t.last) for t in live])
+            ratio = np.maximum(areas[None, :], last_areas[:, None]) / np.minimum(areas[None, :], last_areas[:, None])
+            dist[ratio > cfg.max_area_ratio] = np.inf
             used_tracks: set[int] = set()
             for flat in np.argsort(dist, axis=None):
                 ti, oi = divmod(int(flat), len(observations))
