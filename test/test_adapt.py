@@ -79,6 +79,7 @@ def test_adapting_to_noisier_upper_beams_cuts_the_false_positives_there(base, tm
     plan = plan_adaptation(drives, model, SENSOR, AdaptConfig(epochs=3, sim_drives=0, holdout=0.25, batch_size=4,
                                                               crop_width=360, lr=0.003, sim_holdout=0), root=root)
     assert [d.train for d in plan.drives] == [30, 30] and "n0: 40 scans" in plan.describe()
+    assert "warning: only 80 real scans" in plan.describe()  # under RECOMMENDED_REAL_SCANS
     out = tmp_path / "adapted.onnx"
     result = adapt(drives, out, plan, tmp_path / "work", show_progress=False)
     assert out.is_file() and not out.with_name(out.name + ".partial").exists()

@@ -34,6 +34,10 @@ from ros2_mos.io.semantic_kitti import write_calib, write_label, write_poses, wr
 
 #: Fewer real scans than this are too few to adapt on.
 MIN_REAL_SCANS = 30
+#: Below this many real scans the plan warns: adapted on 54 real scans (08b, r1) the HDL-64E model labelled an unseen
+#: drive (r2) worse, precision 45.7 -> 21.7 %; on 186 (08b, r2) it labelled the unseen r1 better
+#: (benchmarks/adaptation.md, leave-one-drive-out).
+RECOMMENDED_REAL_SCANS = 150
 #: Wall seconds per training sample (one cropped scan, forward and backward) and per scan prepared (autolabelled,
 #: simulated, cached) on the 2-core development machine, for the plan's minutes: the HDL-64E model, 256-column crops,
 #: 208 real + 240 simulated scans, 6 epochs took 2.5 min (benchmarks/adaptation.md).
@@ -99,6 +103,16 @@ class AdaptPlan:
         samples = (self.real_train + self.sim_train) * self.config.epochs
         return (prepared * SECONDS_PER_PREPARED_SCAN + samples * SECONDS_PER_SAMPLE) / 60.0
 
+    @property
+    def warnings(self) -> list[str]:
+        """What makes the plan doubtful (the CLI prints them with the plan)."""
+        total = sum(d.scans for d in self.drives)
+        if total < RECOMMENDED_REAL_SCANS:
+            return [f"only {total} real scans: adapted on this few, a model has labelled unseen drives worse than "
+                    f"its base (benchmarks/adaptation.md); {RECOMMENDED_REAL_SCANS} or more are recommended, and "
+                    "check the adapted model on a drive it was not adapted on before you use it"]
+        return []
+
     def describe(self) -> str:
         lines = [f"base {self.base_model.name} ({self.sensor.name}), fine-tuned from {self.base_checkpoint} "
                  f"with {self.base_config}'s recipe"]
@@ -109,6 +123,7 @@ class AdaptPlan:
         lines.append(f"{self.config.epochs} epochs x {self.real_train + self.sim_train} scans (crops "
                      f"{self.config.crop_width} columns), about {self.expected_minutes():.0f} minutes on 2 cores "
                      f"(at most {self.config.max_minutes:g} of training)")
+        lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
 
