@@ -30,9 +30,10 @@ from ros2_mos.offline.drives import FolderDrive
 from ros2_mos.scoring.metrics import MovingIoU
 from ros2_mos.scoring.suite import SIM_SEEDS, ensure_sim_sequences
 
-#: Drives autolabel's settings were tuned on (never the suite's): the first three, six more later, then seven more.
-VALIDATION_SEEDS = {"easy": (9603, 9604, 9605, 9611, 9612), "benchmark": (9601, 9606, 9607, 9608, 9613, 9614, 9615),
-                    "traffic_jam": (9602, 9609, 9610, 9616, 9617)}
+#: Drives autolabel's settings were tuned on (never the suite's): the first three, then seven, seven and nine more.
+VALIDATION_SEEDS = {"easy": (9603, 9604, 9605, 9611, 9612, 9618, 9619, 9620),
+                    "benchmark": (9601, 9606, 9607, 9608, 9613, 9614, 9615, 9621, 9622, 9623),
+                    "traffic_jam": (9602, 9609, 9610, 9616, 9617, 9624, 9625, 9626)}
 SHIPPED_MODEL = {"hdl64": "default"}
 
 

@@ -62,11 +62,11 @@ class AutolabelConfig:
     far_offsets: tuple[int, ...] = (-40, -20, -10, 10, 20, 40)
     #: An observation of a mover moves now when this share of its points was seen through by a near scan ...
     instant_seen_through: float = 0.3
-    #: ... or its track's centroid moved this fast (m/s) over the observations ``instant_span`` before and after it.
+    #: ... or its box (or centroid) moved this fast (m/s) over the observations ``instant_span`` before and after it.
     instant_speed: float = 0.4
     instant_span: int = 5
     instant_motion: str = "box"
-    instant_context: int = 10  # observations
+    instant_context: int = 10  # observations (the centroid rule only)
     #: An observation of a mover is moving (SemanticKITTI's convention) only where its box, grown by this many
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
     support_margin: float = 0.3
@@ -233,8 +233,11 @@ class AutoLabeler:
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
         """The observations of movers that move in their own scan (the instant convention): seen through by a near
-        scan, or with a moving centroid within ``instant_context`` observations of one that was seen through (so that
-        the centroid of a car that waits long, which slides as the sensor passes it, does not count)."""
+        scan, or moving at ``instant_speed`` or more: their box (:func:`box_shift`), or with
+        ``instant_motion='centroid'`` their centroid within ``instant_context`` observations of one that was seen
+        through (the centroid of a car that waits long slides as the sensor passes it; the box rule needs no such
+        guard, and with it a car that leaves at the very end of a drive, with no later scan to see through its old
+        place, still counts)."""
         cfg = self.config
         out = set()
         for tid in result.movers:
@@ -254,9 +257,12 @@ class AutoLabeler:
                 shift = c[after] - c[before]
             speed = np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
             near = np.array([o.near >= cfg.instant_seen_through for o in obs])
-            seen = np.flatnonzero([o.far >= cfg.tracks.seen_through for o in obs])
-            context = (np.abs(index[:, None] - seen[None, :]) <= cfg.instant_context).any(axis=1) if len(seen) \
-                else np.zeros(m, bool)
+            if cfg.instant_motion == "box":
+                context = np.ones(m, bool)
+            else:
+                seen = np.flatnonzero([o.far >= cfg.tracks.seen_through for o in obs])
+                context = (np.abs(index[:, None] - seen[None, :]) <= cfg.instant_context).any(axis=1) if len(seen) \
+                    else np.zeros(m, bool)
             moving = near | ((speed >= cfg.instant_speed) & context)
             out.update((o.scan, o.obj) for o, flag in zip(obs, moving) if flag)
         return out
