@@ -81,6 +81,21 @@ def test_objects_keep_a_car_and_drop_a_building_and_the_ground():
     assert (found.point_object[4850:] == -1).all()  # 12 m high: not an object
 
 
+def test_a_kerb_beside_a_car_stays_ground_and_a_flat_ring_is_no_object():
+    rng = np.random.default_rng(1)
+    ground = np.column_stack([rng.uniform(-30, 30, 4000), rng.uniform(-30, 30, 4000), np.zeros(4000)])
+    car = np.column_stack([rng.uniform(5, 9.5, 800), rng.uniform(2, 3.8, 800), rng.uniform(0.35, 1.5, 800)])
+    kerb = np.column_stack([rng.uniform(-10, 25, 700), rng.uniform(3.9, 4.2, 700), np.full(700, 0.25)])
+    ring = np.column_stack([np.linspace(12, 16, 60), np.full(60, -6.0), np.linspace(0.6, 0.65, 60)])  # one beam
+    pts = np.vstack([ground, car, kerb, ring]).astype(np.float32)
+    found = find_objects(pts)
+    car_ids = set(found.point_object[4000:4800].tolist())
+    assert len(car_ids) == 1 and car_ids != {-1}
+    kerb_ids = found.point_object[4800:5500]
+    assert (kerb_ids[np.abs(pts[4800:5500, 0] - 7.25) > 3] == -1).all()  # the kerb along the street is no object
+    assert (found.point_object[5500:] == -1).all()  # a cluster flatter than min_height is no object
+
+
 def test_config_is_checked():
     from ros2_mos.offline.objects import ObjectConfig
     from ros2_mos.offline.tracks import TrackConfig

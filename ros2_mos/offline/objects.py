@@ -42,15 +42,16 @@ def check_numbers(config: object, what: str, zero_ok: tuple[str, ...] = (), at_m
 class ObjectConfig:
     ground_cell: float = 1.0  # m
     ground_radius: int = 2  # cells
-    ground_height: float = 0.2  # m above the local ground
+    ground_height: float = 0.3  # m above the local ground (kerbs and sidewalk edges stay below it)
     max_range: float = 60.0  # m: farther points are too sparse to cut into objects
     voxel: float = 0.4  # m
     min_points: int = 8
     max_length: float = 22.0  # m: a bus or a truck alongside still fits
     max_height: float = 4.5  # m
+    min_height: float = 0.15  # m: a flatter cluster is one ring on the ground or a kerb, not something that moves
     max_bottom: float = 1.5  # m: an object's lowest point is this close to the ground
     attach_above: float = 0.08  # m: low points higher than this above the ground under an object are attached to it
-    attach_cell: float = 0.2  # m: ... when they share a top-view cell of this size with one of its points
+    attach_cell: float = 0.4  # m: ... when they share a top-view cell of this size with one of its points
 
     def __post_init__(self) -> None:
         check_numbers(self, "autolabel objects", zero_ok=("ground_radius", "attach_above"))
@@ -150,8 +151,9 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig()) -> S
     bottom = np.full(k, np.inf, np.float32)
     np.minimum.at(bottom, cluster, height[candidate])
     length = np.hypot(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
-    good = ((counts >= config.min_points) & (length <= config.max_length) & (hi[:, 2] - lo[:, 2] <= config.max_height)
-            & (bottom <= config.max_bottom))
+    tall = hi[:, 2] - lo[:, 2]
+    good = ((counts >= config.min_points) & (length <= config.max_length) & (tall <= config.max_height)
+            & (tall >= config.min_height) & (bottom <= config.max_bottom))
     new_id = np.full(k, -1, np.int32)
     new_id[good] = np.arange(int(good.sum()), dtype=np.int32)
     point_object = np.full(n, -1, np.int32)
