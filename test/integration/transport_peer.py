@@ -4,7 +4,10 @@ Publishes ``--scans`` full-size HDL-64-like clouds (64 x 2048 rays cast analytic
 canyon, ~120k points, the sensor moving 1 m per scan) on /points at 10 Hz and subscribes to
 /mos/static_points, /mos/moving_points and /mos/labels, all with the same QoS (``--qos sensor``:
 best effort, keep last 5, as SLAM stacks subscribe; ``--qos reliable``). Prints one JSON line with
-the stamps received per topic.
+the stamps received per topic. ``--min-outputs N``: after the ``--scans`` clouds, go on publishing (up to
+``--max-scans``) until N clouds have arrived on /mos/labels: a best-effort publisher with Fast DDS's default
+settings loses most large clouds on the way in (benchmarks/transport.md), and a test needs the node to have had
+some work.
 """
 
 from __future__ import annotations
@@ -60,6 +63,8 @@ def main() -> None:
     parser.add_argument("--scans", type=int, default=40)
     parser.add_argument("--qos", choices=("sensor", "reliable"), default="sensor")
     parser.add_argument("--wait", type=float, default=20.0, help="seconds to wait for the node's subscription")
+    parser.add_argument("--min-outputs", type=int, default=0, help="publish on until this many labels arrived")
+    parser.add_argument("--max-scans", type=int, default=400, help="... but never more clouds than this")
     args = parser.parse_args()
 
     rclpy.init()
@@ -87,20 +92,35 @@ def main() -> None:
             pub.get_subscription_count() > 0 and all(node.count_publishers(f"/mos/{t}") > 0 for t in TOPICS)):
         time.sleep(0.05)
     time.sleep(1.0)  # let the node's publishers match our subscriptions too
-    scans = [canyon_scan(float(i), 20.0 + 1.5 * i) for i in range(args.scans)]
-    clouds = [fill_xyzi(m.empty_cloud(TYPES, m.make_header(TYPES, BASE_STAMP + i * 100_000_000, "velodyne")),
+    def cloud(i: int) -> tuple[object, int]:
+        pts = canyon_scan(float(i), 20.0 + 1.5 * i)
+        msg = fill_xyzi(m.empty_cloud(TYPES, m.make_header(TYPES, BASE_STAMP + i * 100_000_000, "velodyne")),
                         pts, np.full(len(pts), 0.3, np.float32), field_factory=TYPES.point_field)
-              for i, pts in enumerate(scans)]
+        return msg, len(pts)
+
+    clouds = [cloud(i) for i in range(args.scans)]  # made before the clock starts: 10 Hz without gaps
+
+    def enough() -> bool:
+        with lock:
+            return len(got["labels"]) >= args.min_outputs
+
+    sizes = []
     start = time.monotonic()
-    for i, msg in enumerate(clouds):  # 10 Hz on the wall clock
+    i = 0
+    while i < args.scans or (i < args.max_scans and not enough()):  # 10 Hz on the wall clock
+        msg, size = clouds[i] if i < len(clouds) else cloud(i)
         delay = start + 0.1 * i - time.monotonic()
         if delay > 0:
             time.sleep(delay)
         pub.publish(msg)
+        sizes.append(size)
+        i += 1
+        if i == args.scans and not enough():
+            time.sleep(1.0)  # the outputs still on their way before publishing more
+            start = time.monotonic() - 0.1 * i
     time.sleep(3.0)  # the last outputs
     with lock:
-        result = {"sent": len(clouds), "points": int(np.median([len(s) for s in scans])),
-                  **{t: sorted(v) for t, v in got.items()}}
+        result = {"sent": i, "points": int(np.median(sizes)), **{t: sorted(v) for t, v in got.items()}}
     print(json.dumps(result), flush=True)
     executor.shutdown(timeout_sec=5.0)
     spin.join(timeout=5.0)  # a spin thread still inside rcl at exit aborts the process ("terminate called ...")
