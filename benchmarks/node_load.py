@@ -146,8 +146,8 @@ def main() -> None:
                                                                              "total") if f"{k}_ms_mean" in d)
             tag = " B" if b else (" A" if args.ab else "")
             share = 100 * r["labels"] / max(r["sent"], 1)
-            missed = ", ".join(map(str, r["missed"][:8])) + (" ..." if len(r["missed"]) > 8 else "")
-            missed = f" (missed: {missed})" if missed else ""
+            missed = (f" (missed: {', '.join(map(str, r['missed'][:8]))}{' ...' if len(r['missed']) > 8 else ''})"
+                      if r["missed"] else "")
             rows.append(f"| {run + 1}{tag} | {r['sent']} | **{r['labels']}** ({share:.0f} %){missed} | "
                         f"{np.median(lat):.0f} / {np.percentile(lat, 95):.0f} | {d.get('dropped', '?')} | "
                         f"{d.get('capacity_hz', '?')} | {stages} | "

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 import ros2_mos.core.pipeline as pipeline_module
+from ros2_mos.core.config import MosConfig
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.odometry import KissIcpOdometry
 from ros2_mos.core.pipeline import MosPipeline
@@ -75,7 +76,7 @@ def overlap(scans: list[np.ndarray], model_path: Path, network_input: np.ndarray
             ort_threads: int) -> tuple[float, float, float, float]:
     """Median ms of odometry, inference, the two in sequence, and the two started together on two threads."""
     model = MosModel(model_path, intra_op_threads=ort_threads)
-    odometry = KissIcpOdometry(MosPipeline().config.odometry)
+    odometry = KissIcpOdometry(MosConfig().odometry)  # the pipeline's default settings
     half = len(scans) // 2
     for scan in scans[:WARM_UP]:
         odometry.register(scan[:, :3])

@@ -11,7 +11,8 @@ The steps (:meth:`AutoLabeler.label`), each a stage built once:
 3. **Tracks** through the drive (:mod:`~ros2_mos.offline.tracks`): a track with enough seen-through observations is a
    mover.
 4. **Labels**: under SemanticKITTI's convention every point of a mover is moving in every scan in which it is seen
-   (also while it waits); under the instant convention only in the scans where nearby scans saw through it.
+   (also while it waits); under the instant convention only in the scans where nearby scans saw through it or its
+   box moved (:func:`box_shift`).
 """
 
 from __future__ import annotations
@@ -140,8 +141,7 @@ class AutoLabeler:
             if problem:
                 raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")
             if odometry is not None:
-                poses.append(odometry.estimate(scan.points))
-                odometry.update_map()
+                poses.append(odometry.register(scan.points))
             stamps.append(scan.stamp)
             sizes.append(len(scan.points))
             progress("poses", 1)
@@ -168,8 +168,7 @@ class AutoLabeler:
         for scan in drive:
             if scan.index >= RESTART_SCANS:
                 break
-            again.append(odometry.estimate(scan.points))
-            odometry.update_map()
+            again.append(odometry.register(scan.points))
         again = np.asarray(again)
         anchor = poses[RESTART_FROM] @ np.linalg.inv(again[RESTART_FROM])
         out = poses.copy()
