@@ -149,6 +149,36 @@ def test_a_track_does_not_jump_onto_an_object_many_times_its_size():
         TrackConfig(max_area_ratio=0.5)
 
 
+def test_seen_through_observations_lie_apart_only_when_their_boxes_travel():
+    from ros2_mos.offline.tracks import Observation, Track, TrackConfig, Tracker, evidence_travel
+
+    def obs(scan: int, lo: tuple[float, float], hi: tuple[float, float], far: float) -> Observation:
+        lo3, hi3 = np.array([*lo, 0.0]), np.array([*hi, 1.5])
+        return Observation(scan, 0, (lo3 + hi3) / 2, 100, lo3, hi3, far, far)
+
+    # a parked car (x 50-54.8) that a passer-by merges with for three scans: the merged cluster grows forward
+    # (x 50-56, 50-58, 50-60) and is seen through where the passer-by was. Centroid extent 2.0 m; the boxes' rear
+    # edges stay, so they did not travel.
+    parked = [obs(k, (50.0, -5.0), (54.8, -3.0), 0.0) for k in range(20)]
+    merged = [obs(20 + i, (50.0, -5.0), (56.0 + 2 * i, -3.0), 0.35) for i in range(3)]
+    parked += merged + [obs(k, (50.0, -5.0), (54.8, -3.0), 0.0) for k in range(23, 40)]
+    assert evidence_travel(merged, "centroid") == pytest.approx(2.0)
+    assert evidence_travel(merged) == pytest.approx(0.0)
+    # a car that waited (x 10-14.5) and then left, seen through once while it waited and twice as it left,
+    # 2 and then 3 m on: both edges travelled 3 m
+    left = [obs(k, (10.0, 0.0), (14.5, 1.8), 0.4 if k == 5 else 0.0) for k in range(30)]
+    left += [obs(30, (12.0, 0.0), (16.5, 1.8), 0.4), obs(31, (13.0, 0.0), (17.5, 1.8), 0.4)]
+    assert evidence_travel([o for o in left if o.far > 0]) == pytest.approx(3.0)
+
+    config = TrackConfig(min_evidence_travel=1.5, moving_share=0.2)
+    tracker = Tracker(config)
+    assert not tracker.seen_moving(Track(0, parked))  # 3 of 40 seen through, boxes 0 m apart
+    assert tracker.seen_moving(Track(1, left))  # 3 of 32 seen through, boxes 3 m apart
+    assert Tracker(TrackConfig(evidence_travel="centroid")).seen_moving(Track(0, parked))  # the old rule's error
+    with pytest.raises(ConfigError, match="evidence_travel"):
+        TrackConfig(evidence_travel="median")
+
+
 # -- hand-made drives -------------------------------------------------------------------------------------------
 def test_a_car_that_waits_then_drives_is_moving_throughout_in_semantickitti_and_only_while_driving_in_instant(
         tmp_path):

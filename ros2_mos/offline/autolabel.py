@@ -36,7 +36,7 @@ from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import ObjectConfig, check_numbers, find_objects
-from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
+from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker, box_shift
 from ros2_mos.offline.visibility import SeenScan
 
 #: Fewer scans give no future or past to compare with.
@@ -291,19 +291,6 @@ class AutoLabeler:
             else:
                 moving[j] = (scan, j) in result.moving_now
         return moving
-
-
-def box_shift(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray) -> np.ndarray:
-    """(M, D) how far boxes moved from (lo0, hi0) to (lo1, hi1), per axis, counting only what both edges agree on.
-
-    A standing object's visible box grows or shrinks as the view changes, one edge at a time, and its centroid
-    slides with it; a moving one carries both edges along. Per axis: where both edges moved the same way, the
-    smaller of the two moves; where they moved apart (or one stayed), nothing.
-    """
-    d_lo = lo1 - lo0
-    d_hi = hi1 - hi0
-    same_way = np.sign(d_lo) == np.sign(d_hi)
-    return np.where(same_way, np.where(np.abs(d_lo) < np.abs(d_hi), d_lo, d_hi), 0.0)
 
 
 def scan_labels(labeler: AutoLabeler, result: AutolabelResult, workdir: Path, scan: int,

@@ -19,6 +19,9 @@ import numpy as np
 
 from ros2_mos.core.errors import ConfigError
 
+#: How far apart seen-through observations lie (:func:`evidence_travel`).
+EVIDENCE_TRAVEL = ("box", "centroid")
+
 
 @dataclass(frozen=True)
 class TrackConfig:
@@ -29,7 +32,9 @@ class TrackConfig:
     seen_through: float = 0.3  # share of an observation's points seen through that makes it moving evidence
     min_moving_observations: int = 2
     moving_share: float = 0.2  # ... and at least this share of the track's observations,
-    min_evidence_travel: float = 1.5  # m: or seen-through observations this far apart (it waited long, then left)
+    #: m: or fewer seen-through observations that lie this far apart (it waited long, then left) ...
+    min_evidence_travel: float = 1.5
+    evidence_travel: str = "box"  # ... measured by their boxes (box_shift) or centroids (:func:`evidence_travel`)
     #: An observation whose footprint (box area) is this many times larger or smaller than the track's last one
     #: does not continue it: a track that lost its mover must not jump onto the hedge or the row of cars beside it.
     max_area_ratio: float = 4.0
@@ -38,6 +43,9 @@ class TrackConfig:
         from ros2_mos.offline.objects import check_numbers
 
         check_numbers(self, "autolabel tracks", zero_ok=("moving_share",), at_most_one=("seen_through", "moving_share"))
+        if self.evidence_travel not in EVIDENCE_TRAVEL:
+            raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
+                              f"{self.evidence_travel!r}")
         if self.max_area_ratio < 1.0:
             raise ConfigError(f"autolabel tracks: max_area_ratio must be >= 1, got {self.max_area_ratio!r}")
 
@@ -83,6 +91,37 @@ class Track:
         t = stamps[[o.scan for o in obs]]
         dt = np.maximum(t[window:] - t[:-window], 1e-3)
         return float((np.linalg.norm(c[window:] - c[:-window], axis=1) / dt).max())
+
+
+def box_shift(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray) -> np.ndarray:
+    """(M, D) how far boxes moved from (lo0, hi0) to (lo1, hi1), per axis, counting only what both edges agree on.
+
+    A standing object's visible box grows or shrinks as the view changes, one edge at a time, and its centroid
+    slides with it; a moving one carries both edges along. Per axis: where both edges moved the same way, the
+    smaller of the two moves; where they moved apart (or one stayed), nothing.
+    """
+    d_lo = lo1 - lo0
+    d_hi = hi1 - hi0
+    same_way = np.sign(d_lo) == np.sign(d_hi)
+    return np.where(same_way, np.where(np.abs(d_lo) < np.abs(d_hi), d_lo, d_hi), 0.0)
+
+
+def evidence_travel(observations: list[Observation], measure: str = "box") -> float:
+    """How far apart (m, seen from above) seen-through ``observations`` of one track lie.
+
+    ``measure='box'``: the largest :func:`box_shift` between two of them. A parked car that a passer-by merged with
+    for a few scans is seen through there (the passer-by's share), and it grows and shrinks: its centroid slides by
+    metres, its box edges do not travel together. ``'centroid'``: the diagonal of their centroids' extent.
+    """
+    if len(observations) < 2:
+        return 0.0
+    if measure == "centroid":
+        centroids = np.array([o.centroid[:2] for o in observations])
+        return float(np.hypot(*(centroids.max(axis=0) - centroids.min(axis=0))))
+    lo = np.array([o.lo[:2] for o in observations])
+    hi = np.array([o.hi[:2] for o in observations])
+    shift = box_shift(lo[:, None, :], hi[:, None, :], lo[None, :, :], hi[None, :, :])
+    return float(np.linalg.norm(shift, axis=-1).max())
 
 
 #: Footprints are measured from this size up (m per side): a pole's or a flat object's box has next to no area.
@@ -158,8 +197,7 @@ class Tracker:
             return False
         if len(evidence) >= cfg.moving_share * len(track.observations):
             return True
-        centroids = np.array([o.centroid[:2] for o in evidence])
-        return float(np.hypot(*(centroids.max(axis=0) - centroids.min(axis=0)))) >= cfg.min_evidence_travel
+        return evidence_travel(evidence, cfg.evidence_travel) >= cfg.min_evidence_travel
 
     def movers(self) -> dict[int, str]:
         """{track id: the evidence that makes it a mover} ('seen through')."""
