@@ -81,19 +81,25 @@ def test_objects_keep_a_car_and_drop_a_building_and_the_ground():
     assert (found.point_object[4850:] == -1).all()  # 12 m high: not an object
 
 
-def test_a_kerb_beside_a_car_stays_ground_and_a_flat_ring_is_no_object():
+def test_kerbs_flat_rings_low_down_and_the_sensor_s_own_vehicle_are_no_objects():
     rng = np.random.default_rng(1)
     ground = np.column_stack([rng.uniform(-30, 30, 4000), rng.uniform(-30, 30, 4000), np.zeros(4000)])
     car = np.column_stack([rng.uniform(5, 9.5, 800), rng.uniform(2, 3.8, 800), rng.uniform(0.35, 1.5, 800)])
     kerb = np.column_stack([rng.uniform(-10, 25, 700), rng.uniform(3.9, 4.2, 700), np.full(700, 0.25)])
-    ring = np.column_stack([np.linspace(12, 16, 60), np.full(60, -6.0), np.linspace(0.6, 0.65, 60)])  # one beam
-    pts = np.vstack([ground, car, kerb, ring]).astype(np.float32)
+    ring = np.column_stack([np.linspace(12, 16, 60), np.full(60, -6.0), np.linspace(0.4, 0.45, 60)])  # one beam
+    # one beam across a car's body 0.9 m up, all a 16-beam sensor sees of a car 20 m away
+    body = np.column_stack([np.linspace(-20, -16, 40), np.full(40, 10.0), np.linspace(0.9, 0.95, 40)])
+    # returns from the sensor's own vehicle, 1.4 m away and 0.5 m below the sensor
+    own = np.column_stack([np.linspace(-0.8, -0.4, 30), np.full(30, -1.3), np.linspace(1.0, 1.15, 30)])
+    pts = np.vstack([ground, car, kerb, ring, body, own]).astype(np.float32)
     found = find_objects(pts)
     car_ids = set(found.point_object[4000:4800].tolist())
     assert len(car_ids) == 1 and car_ids != {-1}
     kerb_ids = found.point_object[4800:5500]
     assert (kerb_ids[np.abs(pts[4800:5500, 0] - 7.25) > 3] == -1).all()  # the kerb along the street is no object
-    assert (found.point_object[5500:] == -1).all()  # a cluster flatter than min_height is no object
+    assert (found.point_object[5500:5560] == -1).all()  # a cluster flatter than min_height, low, is no object
+    assert len(set(found.point_object[5560:5600].tolist()) - {-1}) == 1  # up on a body it is one
+    assert (found.point_object[5600:] == -1).all()  # the sensor's own vehicle is none
 
 
 def test_config_is_checked():

@@ -44,17 +44,23 @@ class ObjectConfig:
     ground_radius: int = 2  # cells
     ground_height: float = 0.3  # m above the local ground (kerbs and sidewalk edges stay below it)
     max_range: float = 60.0  # m: farther points are too sparse to cut into objects
+    #: m: points this close to the sensor, seen from above, are the vehicle that carries it (KITTI's HDL-64E sees
+    #: parts of its own car 1.4-1.9 m away, and they move with the sensor)
+    ego_radius: float = 2.0
     voxel: float = 0.4  # m
     min_points: int = 8
     max_length: float = 22.0  # m: a bus or a truck alongside still fits
     max_height: float = 4.5  # m
-    min_height: float = 0.15  # m: a flatter cluster is one ring on the ground or a kerb, not something that moves
+    min_height: float = 0.15  # m: a flatter cluster is one ring on the ground or a kerb, not something that moves ...
+    #: m: ... when its top is this low above the ground too; higher up, one ring on a car's body (a sparse sensor
+    #: sees most cars with one or two rings) is an object
+    flat_top: float = 0.6
     max_bottom: float = 1.5  # m: an object's lowest point is this close to the ground
     attach_above: float = 0.08  # m: low points higher than this above the ground under an object are attached to it
     attach_cell: float = 0.4  # m: ... when they share a top-view cell of this size with one of its points
 
     def __post_init__(self) -> None:
-        check_numbers(self, "autolabel objects", zero_ok=("ground_radius", "attach_above"))
+        check_numbers(self, "autolabel objects", zero_ok=("ground_radius", "attach_above", "ego_radius"))
 
 
 @dataclass
@@ -136,7 +142,8 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig()) -> S
     """Ground, clusters and object-sized clusters of one scan (sensor frame, finite points)."""
     n = len(points)
     height = (points[:, 2] - local_ground(points, config.ground_cell, config.ground_radius)).astype(np.float32)
-    candidate = np.flatnonzero((height > config.ground_height)
+    horizontal = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
+    candidate = np.flatnonzero((height > config.ground_height) & (horizontal >= config.ego_radius**2)
                                & (np.einsum("ij,ij->i", points, points) < config.max_range**2))
     cluster = voxel_clusters(points[candidate], config.voxel)
     cluster = split_long_clusters(points[candidate], cluster, config)
@@ -150,10 +157,12 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig()) -> S
         np.maximum.at(hi[:, axis], cluster, pts[:, axis])
     bottom = np.full(k, np.inf, np.float32)
     np.minimum.at(bottom, cluster, height[candidate])
+    top = np.full(k, -np.inf, np.float32)
+    np.maximum.at(top, cluster, height[candidate])
     length = np.hypot(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
     tall = hi[:, 2] - lo[:, 2]
     good = ((counts >= config.min_points) & (length <= config.max_length) & (tall <= config.max_height)
-            & (tall >= config.min_height) & (bottom <= config.max_bottom))
+            & ((tall >= config.min_height) | (top >= config.flat_top)) & (bottom <= config.max_bottom))
     new_id = np.full(k, -1, np.int32)
     new_id[good] = np.arange(int(good.sum()), dtype=np.int32)
     point_object = np.full(n, -1, np.int32)
