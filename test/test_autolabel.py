@@ -155,6 +155,33 @@ def test_a_track_does_not_jump_onto_an_object_many_times_its_size():
         TrackConfig(max_area_ratio=0.5)
 
 
+def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_moving_often_enough():
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_THROUGH, Observation, Track, TrackConfig, Tracker
+
+    def track(tid: int, online: list[float], far: float = 0.0) -> Track:
+        centre = np.array([10.0, 3.0, 0.8])
+        return Track(tid, [Observation(k, 0, centre, 100, centre - 1, centre + 1, far, far, share)
+                           for k, share in enumerate(online)])
+
+    tracker = Tracker(TrackConfig(cue_share=0.6, cue_observations=5, cue_track_share=0.5))
+    tracker.tracks = [
+        track(0, [0.7] * 5 + [0.0] * 5),  # 5 of 10 at 0.7: a queueing car the online model sees moving
+        track(1, [0.7] * 4 + [0.0] * 2),  # 4 hits: too few
+        track(2, [0.7] * 5 + [0.0] * 6),  # 5 of 11: under half its observations (a pole flickering)
+        track(3, [0.59] * 10),  # under cue_share
+        track(4, [0.0] * 10, far=0.5),  # seen through: a mover without the model
+    ]
+    assert tracker.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH}
+    # the cue's model: the one shipped for the sensor, none for a sensor without one or with the cue off
+    assert AutoLabeler(sensor_preset("hdl64")).cue_model.name == "default.onnx"
+    assert AutoLabeler(sensor_preset("vlp16")).cue_model.name == "vlp16.onnx"
+    assert AutoLabeler(SENSOR).cue_model is None
+    assert AutoLabeler(sensor_preset("hdl64"), AutolabelConfig(online_cue=False)).cue_model is None
+    with pytest.raises(ConfigError, match="cue_share"):
+        TrackConfig(cue_share=1.5)
+
+
 def test_seen_through_observations_lie_apart_only_when_their_boxes_travel():
     from ros2_mos.offline.tracks import Observation, Track, TrackConfig, Tracker, evidence_travel
 
@@ -263,6 +290,7 @@ def test_autolabel_end_to_end_on_a_simulated_drive(jam, tmp_path, convention):
     result = runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(out),
                                  "--convention", convention, "--png"])
     assert result.exit_code == 0, result.output
+    assert "online cue vlp32c.onnx" in result.output  # the model shipped for the drive's sensor
     seq_out = out / "sequences" / "00"
     assert (seq_out / "label_convention.txt").read_text().strip() == convention
     assert len(list((seq_out / "predictions").glob("*.label"))) == 30

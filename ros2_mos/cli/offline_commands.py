@@ -64,5 +64,6 @@ def autolabel(
             folder, result = autolabel_drive(drive, out, spec, convention, config, png, step)
         seconds = time.perf_counter() - start
         share = sum(result.moving_points) / max(sum(result.points), 1)
+        cue = f"online cue {result.cue_model}" if result.cue_model else "no online cue"
         typer.echo(f"wrote {folder}: {n} scans, {len(result.movers)} movers, {100 * share:.2f} % of points moving "
-                   f"({convention}), {n / seconds:.1f} scans/s")
+                   f"({convention}), {cue}, {n / seconds:.1f} scans/s")

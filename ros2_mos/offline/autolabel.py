@@ -36,7 +36,7 @@ from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import ObjectConfig, check_numbers, find_objects
-from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker, box_shift
+from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, TrackConfig, Tracker, box_shift
 from ros2_mos.offline.visibility import SeenScan
 
 #: Fewer scans give no future or past to compare with.
@@ -51,6 +51,9 @@ RESTART_SCANS = 14
 #: How the instant convention measures an object's motion between observations: the box edges that moved together
 #: (:func:`box_shift`), or the centroid (slides while the sensor passes a standing object).
 INSTANT_MOTION = ("box", "centroid")
+#: An observation of a mover found by the online cue moves now where the online model labelled at least this share
+#: of its points moving.
+CUE_MOVING_NOW = 0.5
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,9 @@ class AutolabelConfig:
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
     support_margin: float = 0.3
     use_poses: bool = False  # the drive's own poses instead of KISS-ICP
+    #: The online model (the one shipped for the sensor) labels each scan too, with autolabel's poses: a track
+    #: never seen through that it labels moving often enough is a mover (``TrackConfig.cue_share``).
+    online_cue: bool = True
 
     def __post_init__(self) -> None:
         offsets = (*self.near_offsets, *self.far_offsets)
@@ -100,6 +106,7 @@ class AutolabelResult:
     moving_points: list[int] = field(default_factory=list)  # per scan, in the convention written
     moving_now: set[tuple[int, int]] = field(default_factory=set)  # (scan, object) of movers moving in that scan
     moving_ever: set[tuple[int, int]] = field(default_factory=set)  # (scan, object) of movers where they moved
+    cue_model: str = ""  # the online model used as a cue ("" without one)
 
 
 ProgressFn = Callable[[str, int], None]  # (stage, scans done in it)
@@ -109,8 +116,14 @@ class AutoLabeler:
     """Labels one drive at a time; the stages are built once."""
 
     def __init__(self, sensor: SensorConfig, config: AutolabelConfig = AutolabelConfig(),
-                 odometry: OdometryConfig = OdometryConfig()) -> None:
+                 odometry: OdometryConfig = OdometryConfig(), model: str | Path | None = None) -> None:
+        from ros2_mos.core.inference import shipped_models
+
         self.sensor, self.config, self.odometry_config = sensor, config, odometry
+        #: The online cue's model: ``model``, else the one shipped for the sensor; None without the cue (also for a
+        #: sensor that no shipped model was trained for).
+        self.cue_model = (Path(model) if model is not None else shipped_models().get(sensor.name)) \
+            if config.online_cue else None
 
     # -- the steps -------------------------------------------------------------------------------------------
     def label(self, drive: Drive, workdir: Path, progress: ProgressFn = lambda stage, n: None) -> AutolabelResult:
@@ -121,7 +134,8 @@ class AutoLabeler:
         poses, stamps, sizes = self._poses(drive, progress)
         tracker = Tracker(self.config.tracks)
         self._objects_and_evidence(drive, poses, stamps, tracker, workdir, progress)
-        result = AutolabelResult(drive.name, n, poses, stamps, tracker, tracker.movers(), sizes)
+        result = AutolabelResult(drive.name, n, poses, stamps, tracker, tracker.movers(), sizes,
+                                 cue_model=self.cue_model.name if self.cue_model is not None else "")
         result.moving_ever = self._moving_ever(result)
         result.moving_now = self._moving_now(result) & result.moving_ever  # moving now: where it moved at all
         return result
@@ -180,29 +194,47 @@ class AutoLabeler:
         window = self.config.window
         n = len(poses)
         seen: dict[int, SeenScan] = {}
-        pending: deque[tuple[int, np.ndarray]] = deque()
+        pending: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
         last_stamp: float | None = None
         scans = iter(drive)
         loaded = 0
-        for k in range(n):
-            while loaded < min(n, k + window + 1):  # the window ahead of scan k
-                scan = next(scans)
-                seen[scan.index] = SeenScan(scan.points, poses[scan.index], self.sensor)
-                pending.append((scan.index, scan.points))
-                loaded += 1
-            for old in [i for i in seen if i < k - window]:
-                del seen[old]
-            index, points = pending.popleft()
-            assert index == k
-            observations = self._observe(k, points, poses[k], seen)
-            tracker.add_scan(k, float(stamps[k]), last_stamp, observations[1])
-            last_stamp = float(stamps[k])
-            np.save(workdir / f"{k:06d}.npy", observations[0])
-            progress("objects", 1)
+        online = self._online_model()
+        try:
+            for k in range(n):
+                while loaded < min(n, k + window + 1):  # the window ahead of scan k
+                    scan = next(scans)
+                    seen[scan.index] = SeenScan(scan.points, poses[scan.index], self.sensor)
+                    pending.append((scan.index, scan.points, scan.intensity))
+                    loaded += 1
+                for old in [i for i in seen if i < k - window]:
+                    del seen[old]
+                index, points, intensity = pending.popleft()
+                assert index == k
+                labelled = None
+                if online is not None:
+                    labelled = online.process(points, intensity, float(stamps[k]), pose=poses[k]).labels.astype(bool)
+                observations = self._observe(k, points, poses[k], seen, labelled)
+                tracker.add_scan(k, float(stamps[k]), last_stamp, observations[1])
+                last_stamp = float(stamps[k])
+                np.save(workdir / f"{k:06d}.npy", observations[0])
+                progress("objects", 1)
+        finally:
+            if online is not None:
+                online.close()
 
-    def _observe(self, k: int, points: np.ndarray, pose: np.ndarray,
-                 seen: dict[int, SeenScan]) -> tuple[np.ndarray, list[Observation]]:
-        """Scan k's objects (per point ids) and one observation per object."""
+    def _online_model(self):
+        """The online pipeline for the cue (with autolabel's poses: no odometry of its own), or None."""
+        if self.cue_model is None:
+            return None
+        from ros2_mos.core.config import MosConfig
+        from ros2_mos.core.pipeline import MosPipeline
+
+        return MosPipeline(MosConfig(model=str(self.cue_model), sensor=self.sensor))
+
+    def _observe(self, k: int, points: np.ndarray, pose: np.ndarray, seen: dict[int, SeenScan],
+                 labelled: np.ndarray | None = None) -> tuple[np.ndarray, list[Observation]]:
+        """Scan k's objects (per point ids) and one observation per object (``labelled``: the online model's
+        moving labels of the scan's points, for the cue)."""
         cfg = self.config
         found = find_objects(points, cfg.objects)
         on_object = np.flatnonzero((found.point_object >= 0) & ~found.attached)
@@ -226,8 +258,10 @@ class AutoLabeler:
         for i in range(3):
             np.minimum.at(lo[:, i], obj, world[:, i])
             np.maximum.at(hi[:, i], obj, world[:, i])
-        observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]))
-                        for j in range(found.n_objects)]
+        online = np.zeros(found.n_objects) if labelled is None else \
+            np.bincount(obj, labelled[on_object].astype(np.float64), found.n_objects) / counts
+        observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]),
+                                    float(online[j])) for j in range(found.n_objects)]
         return found.point_object, observations
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
@@ -239,8 +273,11 @@ class AutoLabeler:
         place, still counts)."""
         cfg = self.config
         out = set()
-        for tid in result.movers:
+        for tid, evidence in result.movers.items():
             obs = result.tracker.tracks[tid].observations
+            if evidence == ONLINE_MODEL:  # no seen-through place to move from: the online model's word, scan by scan
+                out.update((o.scan, o.obj) for o in obs if o.online >= CUE_MOVING_NOW)
+                continue
             t = result.stamps[[o.scan for o in obs]]
             m = len(obs)
             index = np.arange(m)
@@ -272,8 +309,11 @@ class AutoLabeler:
         track ran into after losing the mover stands apart from all of that."""
         cfg = self.config
         out = set()
-        for tid in result.movers:
+        for tid, evidence in result.movers.items():
             obs = result.tracker.tracks[tid].observations
+            if evidence == ONLINE_MODEL:  # the online model's movers: every observation
+                out.update((o.scan, o.obj) for o in obs)
+                continue
             lo = np.array([o.lo[:2] for o in obs]) - cfg.support_margin
             hi = np.array([o.hi[:2] for o in obs]) + cfg.support_margin
             evidence = np.array([o.far >= cfg.tracks.seen_through for o in obs])

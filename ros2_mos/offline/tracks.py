@@ -19,6 +19,9 @@ import numpy as np
 
 from ros2_mos.core.errors import ConfigError
 
+#: The evidence that makes a track a mover (:meth:`Tracker.movers`).
+SEEN_THROUGH = "seen through"
+ONLINE_MODEL = "online model"
 #: How far apart seen-through observations lie (:func:`evidence_travel`).
 EVIDENCE_TRAVEL = ("box", "centroid")
 
@@ -38,11 +41,18 @@ class TrackConfig:
     #: An observation whose footprint (box area) is this many times larger or smaller than the track's last one
     #: does not continue it: a track that lost its mover must not jump onto the hedge or the row of cars beside it.
     max_area_ratio: float = 4.0
+    #: A track never seen through is a mover on the online model's word (``Observation.online``) when at least
+    #: ``cue_observations`` of its observations, and ``cue_track_share`` of them, had ``cue_share`` of their points
+    #: labelled moving by it: queueing cars whose place the next car fills are never seen through.
+    cue_share: float = 0.6
+    cue_observations: int = 5
+    cue_track_share: float = 0.5
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
 
-        check_numbers(self, "autolabel tracks", zero_ok=("moving_share",), at_most_one=("seen_through", "moving_share"))
+        check_numbers(self, "autolabel tracks", zero_ok=("moving_share",),
+                      at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
                               f"{self.evidence_travel!r}")
@@ -60,6 +70,7 @@ class Observation:
     hi: np.ndarray
     near: float
     far: float
+    online: float = 0.0  # share of its points the online model labelled moving (0 without the online cue)
 
     @property
     def size(self) -> np.ndarray:
@@ -199,6 +210,18 @@ class Tracker:
             return True
         return evidence_travel(evidence, cfg.evidence_travel) >= cfg.min_evidence_travel
 
+    def labelled_moving(self, track: Track) -> bool:
+        """The online model labelled enough of the track's observations moving (see ``TrackConfig.cue_share``)."""
+        cfg = self.config
+        hits = sum(o.online >= cfg.cue_share for o in track.observations)
+        return hits >= cfg.cue_observations and hits >= cfg.cue_track_share * len(track.observations)
+
     def movers(self) -> dict[int, str]:
-        """{track id: the evidence that makes it a mover} ('seen through')."""
-        return {t.id: "seen through" for t in self.tracks if self.seen_moving(t)}
+        """{track id: the evidence that makes it a mover}: 'seen through', else 'online model'."""
+        out = {}
+        for t in self.tracks:
+            if self.seen_moving(t):
+                out[t.id] = SEEN_THROUGH
+            elif self.labelled_moving(t):
+                out[t.id] = ONLINE_MODEL
+        return out
