@@ -182,6 +182,29 @@ def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_m
         TrackConfig(cue_share=1.5)
 
 
+def test_a_scan_the_online_model_refuses_goes_without_the_cue(jam, tmp_path, monkeypatch):
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.core.errors import ImplausibleScanError
+    from ros2_mos.core.pipeline import MosPipeline
+
+    process = MosPipeline.process
+    calls = []
+
+    def refuse_the_third(self, points, intensity, timestamp, pose=None):
+        calls.append(timestamp)
+        if len(calls) == 3:
+            raise ImplausibleScanError("scattered points, no scan of surfaces")
+        return process(self, points, intensity, timestamp, pose)
+
+    monkeypatch.setattr(MosPipeline, "process", refuse_the_third)
+    labeler = AutoLabeler(sensor_preset("vlp32c"))
+    result = labeler.label(FolderDrive(jam / "sequences" / "00"), tmp_path)
+    assert len(calls) == 30 and result.cue_skipped == 1 and result.cue_model == "vlp32c.onnx"
+    third = [o for t in result.tracker.tracks for o in t.observations if o.scan == 2]
+    assert third and all(o.online == 0.0 for o in third)  # the refused scan: no cue
+    assert any(o.online > 0 for t in result.tracker.tracks for o in t.observations)  # the cue ran elsewhere
+
+
 def test_seen_through_observations_lie_apart_only_when_their_boxes_travel():
     from ros2_mos.offline.tracks import Observation, Track, TrackConfig, Tracker, evidence_travel
 

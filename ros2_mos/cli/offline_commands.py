@@ -65,5 +65,7 @@ def autolabel(
         seconds = time.perf_counter() - start
         share = sum(result.moving_points) / max(sum(result.points), 1)
         cue = f"online cue {result.cue_model}" if result.cue_model else "no online cue"
+        if result.cue_skipped:
+            cue += f" ({result.cue_skipped} scans it refused went without)"
         typer.echo(f"wrote {folder}: {n} scans, {len(result.movers)} movers, {100 * share:.2f} % of points moving "
                    f"({convention}), {cue}, {n / seconds:.1f} scans/s")

@@ -23,12 +23,12 @@ import tempfile
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from ros2_mos.core.config import OdometryConfig, SensorConfig
-from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
 from ros2_mos.core.residuals import transform_columns
 from ros2_mos.core.sensor_check import mismatch_message
 from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_convention_file
@@ -38,6 +38,9 @@ from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import ObjectConfig, check_numbers, find_objects
 from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, TrackConfig, Tracker, box_shift
 from ros2_mos.offline.visibility import SeenScan
+
+if TYPE_CHECKING:
+    from ros2_mos.core.pipeline import MosPipeline
 
 #: Fewer scans give no future or past to compare with.
 MIN_SCANS = 2
@@ -107,6 +110,7 @@ class AutolabelResult:
     moving_now: set[tuple[int, int]] = field(default_factory=set)  # (scan, object) of movers moving in that scan
     moving_ever: set[tuple[int, int]] = field(default_factory=set)  # (scan, object) of movers where they moved
     cue_model: str = ""  # the online model used as a cue ("" without one)
+    cue_skipped: int = 0  # scans the online model refused (ScanError): no cue for them
 
 
 ProgressFn = Callable[[str, int], None]  # (stage, scans done in it)
@@ -133,9 +137,10 @@ class AutoLabeler:
             raise DatasetError(f"{drive.name}: {n} scan(s); autolabel needs at least {MIN_SCANS} (past and future)")
         poses, stamps, sizes = self._poses(drive, progress)
         tracker = Tracker(self.config.tracks)
-        self._objects_and_evidence(drive, poses, stamps, tracker, workdir, progress)
+        cue_skipped = self._objects_and_evidence(drive, poses, stamps, tracker, workdir, progress)
         result = AutolabelResult(drive.name, n, poses, stamps, tracker, tracker.movers(), sizes,
-                                 cue_model=self.cue_model.name if self.cue_model is not None else "")
+                                 cue_model=self.cue_model.name if self.cue_model is not None else "",
+                                 cue_skipped=cue_skipped)
         result.moving_ever = self._moving_ever(result)
         result.moving_now = self._moving_now(result) & result.moving_ever  # moving now: where it moved at all
         return result
@@ -190,7 +195,8 @@ class AutoLabeler:
         return out
 
     def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, tracker: Tracker,
-                              workdir: Path, progress: ProgressFn) -> None:
+                              workdir: Path, progress: ProgressFn) -> int:
+        """Steps 2 and 3 over the drive; returns how many scans the online cue's model refused."""
         window = self.config.window
         n = len(poses)
         seen: dict[int, SeenScan] = {}
@@ -199,6 +205,7 @@ class AutoLabeler:
         scans = iter(drive)
         loaded = 0
         online = self._online_model()
+        skipped = 0
         try:
             for k in range(n):
                 while loaded < min(n, k + window + 1):  # the window ahead of scan k
@@ -212,7 +219,10 @@ class AutoLabeler:
                 assert index == k
                 labelled = None
                 if online is not None:
-                    labelled = online.process(points, intensity, float(stamps[k]), pose=poses[k]).labels.astype(bool)
+                    try:
+                        labelled = online.process(points, intensity, float(stamps[k]), pose=poses[k]).labels
+                    except ScanError:  # a scan the online model refuses gets no cue; visibility still judges it
+                        skipped += 1
                 observations = self._observe(k, points, poses[k], seen, labelled)
                 tracker.add_scan(k, float(stamps[k]), last_stamp, observations[1])
                 last_stamp = float(stamps[k])
@@ -221,8 +231,9 @@ class AutoLabeler:
         finally:
             if online is not None:
                 online.close()
+        return skipped
 
-    def _online_model(self):
+    def _online_model(self) -> "MosPipeline | None":
         """The online pipeline for the cue (with autolabel's poses: no odometry of its own), or None."""
         if self.cue_model is None:
             return None
