@@ -6,13 +6,14 @@ The steps (:meth:`AutoLabeler.label`), each a stage built once:
 2. **Objects and evidence**, in a window sliding over the drive: each scan's ground is removed and the rest cut into
    object-sized segments (:mod:`~ros2_mos.offline.objects`); each object's points are checked against the range
    images of scans before and after it (:mod:`~ros2_mos.offline.visibility`): where those scans saw through the
-   place the object occupies now, it moved. Per scan only the points' object ids go to disk, so memory stays
-   bounded by the window, not by the drive.
+   place the object occupies now, it moved. The online model (the one shipped for the sensor) labels each scan
+   too, with these poses: a cue for what is never seen through. Per scan only the points' object ids go to disk, so
+   memory stays bounded by the window, not by the drive.
 3. **Tracks** through the drive (:mod:`~ros2_mos.offline.tracks`): a track with enough seen-through observations is a
-   mover.
+   mover; so is one that the online model labels moving often enough (cars queueing in a jam).
 4. **Labels**: under SemanticKITTI's convention every point of a mover is moving in every scan in which it is seen
    (also while it waits); under the instant convention only in the scans where nearby scans saw through it or its
-   box moved (:func:`box_shift`).
+   box moved (:func:`box_shift`), or for the online model's movers, where it labels them moving.
 """
 
 from __future__ import annotations
@@ -78,8 +79,8 @@ class AutolabelConfig:
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
     support_margin: float = 0.3
     use_poses: bool = False  # the drive's own poses instead of KISS-ICP
-    #: The online model (the one shipped for the sensor) labels each scan too, with autolabel's poses: a track
-    #: never seen through that it labels moving often enough is a mover (``TrackConfig.cue_share``).
+    #: The online model (the one shipped for the sensor) labels each scan too, with autolabel's poses: a track that
+    #: visibility does not make a mover is one when the model labels it moving often enough (``TrackConfig.cue_share``).
     online_cue: bool = True
 
     def __post_init__(self) -> None:

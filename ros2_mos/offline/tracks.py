@@ -8,7 +8,9 @@ chained into tracks by nearest centroid to a constant-velocity prediction within
 A track is a *mover* (:meth:`Tracker.movers`) when enough of its observations were seen through: the place where it
 stood was empty at another time, so it moved while the sensor watched, and under SemanticKITTI's convention every
 scan of it is moving, also those where it waits. A parked car passed closely keeps its place: its points are never
-seen through, however much its visible centroid slides as the view changes.
+seen through, however much its visible centroid slides as the view changes. A track that is not seen through
+often enough is still a mover when the online model labelled it moving in enough of its observations
+(``Observation.online``): a car queueing in a jam, whose place the next car fills, is never seen through.
 """
 
 from __future__ import annotations
@@ -41,9 +43,9 @@ class TrackConfig:
     #: An observation whose footprint (box area) is this many times larger or smaller than the track's last one
     #: does not continue it: a track that lost its mover must not jump onto the hedge or the row of cars beside it.
     max_area_ratio: float = 4.0
-    #: A track never seen through is a mover on the online model's word (``Observation.online``) when at least
-    #: ``cue_observations`` of its observations, and ``cue_track_share`` of them, had ``cue_share`` of their points
-    #: labelled moving by it: queueing cars whose place the next car fills are never seen through.
+    #: A track that visibility does not make a mover is one on the online model's word (``Observation.online``) when
+    #: at least ``cue_observations`` of its observations, and ``cue_track_share`` of them, had ``cue_share`` of their
+    #: points labelled moving by it: queueing cars whose place the next car fills are never seen through.
     cue_share: float = 0.6
     cue_observations: int = 5
     cue_track_share: float = 0.5
