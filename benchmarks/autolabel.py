@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ros2_mos.core.config import MosConfig, sensor_preset
+from ros2_mos.core.inference import default_model_path
 from ros2_mos.core.pipeline import MosPipeline
 from ros2_mos.io.conventions import CONVENTIONS, label_dirs
 from ros2_mos.io.labels import to_moving_classes
@@ -34,7 +35,6 @@ from ros2_mos.scoring.suite import SIM_SEEDS, ensure_sim_sequences
 VALIDATION_SEEDS = {"easy": (9603, 9604, 9605, 9611, 9612, 9618, 9619, 9620),
                     "benchmark": (9601, 9606, 9607, 9608, 9613, 9614, 9615, 9621, 9622, 9623),
                     "traffic_jam": (9602, 9609, 9610, 9616, 9617, 9624, 9625, 9626)}
-SHIPPED_MODEL = {"hdl64": "default"}
 
 
 def score_drive(folder: Path, sensor: str, online: bool,
@@ -57,9 +57,7 @@ def score_drive(folder: Path, sensor: str, online: bool,
                 out["recall"] = score.tp / max(score.tp + score.fn, 1)
         out["scans/s"] = len(seq) / (time.perf_counter() - start)
     if online:
-        name = SHIPPED_MODEL.get(sensor, sensor)
-        model = Path(__file__).resolve().parents[1] / "ros2_mos" / "models" / f"{name}.onnx"
-        pipe = MosPipeline(MosConfig(model=str(model)))
+        pipe = MosPipeline(MosConfig(model=str(default_model_path(sensor))))
         scores = {c: MovingIoU() for c in CONVENTIONS}
         for k, frame in enumerate(seq):
             labels = pipe.process(frame.points, frame.remission, frame.timestamp).labels
@@ -84,7 +82,13 @@ def main() -> None:
     changes = {}
     for item in args.set:
         name, _, value = item.partition("=")
-        changes[name] = type(getattr(AutolabelConfig(), name))(value)
+        kind = type(getattr(AutolabelConfig(), name))
+        if kind is bool:  # bool("false") is True
+            if value.lower() not in ("true", "false"):
+                parser.error(f"--set {name}: true or false, got {value!r}")
+            changes[name] = value.lower() == "true"
+        else:
+            changes[name] = kind(value)
     config = AutolabelConfig(**changes)
     seeds = SIM_SEEDS if args.seeds == "suite" else VALIDATION_SEEDS
     print(f"autolabel benchmark, {time.strftime('%Y-%m-%d')}: {args.seeds} drives, {args.scans} scans, "

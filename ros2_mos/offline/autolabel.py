@@ -300,17 +300,15 @@ class AutoLabeler:
                 lo = np.array([o.lo[:2] for o in obs])
                 hi = np.array([o.hi[:2] for o in obs])
                 shift = box_shift(lo[before], hi[before], lo[after], hi[after])
+                context = np.ones(m, bool)
             else:
                 c = np.array([o.centroid[:2] for o in obs])
                 shift = c[after] - c[before]
-            speed = np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
-            near = np.array([o.near >= cfg.instant_seen_through for o in obs])
-            if cfg.instant_motion == "box":
-                context = np.ones(m, bool)
-            else:
                 seen = np.flatnonzero([o.far >= cfg.tracks.seen_through for o in obs])
                 context = (np.abs(index[:, None] - seen[None, :]) <= cfg.instant_context).any(axis=1) if len(seen) \
                     else np.zeros(m, bool)
+            speed = np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
+            near = np.array([o.near >= cfg.instant_seen_through for o in obs])
             moving = near | ((speed >= cfg.instant_speed) & context)
             out.update((o.scan, o.obj) for o, flag in zip(obs, moving) if flag)
         return out

@@ -144,7 +144,7 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig()) -> S
     height = (points[:, 2] - local_ground(points, config.ground_cell, config.ground_radius)).astype(np.float32)
     horizontal = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
     candidate = np.flatnonzero((height > config.ground_height) & (horizontal >= config.ego_radius**2)
-                               & (np.einsum("ij,ij->i", points, points) < config.max_range**2))
+                               & (horizontal + points[:, 2] ** 2 < config.max_range**2))
     cluster = voxel_clusters(points[candidate], config.voxel)
     cluster = split_long_clusters(points[candidate], cluster, config)
     k = int(cluster.max()) + 1 if len(cluster) else 0
