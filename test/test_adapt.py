@@ -98,6 +98,11 @@ def test_adapting_to_noisier_upper_beams_cuts_the_false_positives_there(base, tm
     # resumes: a second run finds the labels, data and checkpoints and trains no further epoch
     again = adapt(drives, tmp_path / "again.onnx", plan, tmp_path / "work", show_progress=False)
     assert again.minutes < result.minutes
+    # ... but not from labels of another drive of the same name (or made by other rules)
+    other = [FolderDrive(_drive(tmp_path / "other", "n0", 30, noise=0.15, n=40)), drives[1]]
+    with pytest.raises(DatasetError, match="n0 were made from another drive"):
+        adapt(other, tmp_path / "other.onnx", plan, tmp_path / "work", show_progress=False)
+    assert not (tmp_path / "other.onnx").exists()
 
 
 def test_adapt_refuses_too_few_scans_another_sensor_s_base_and_mixed_sensors(base, tmp_path):

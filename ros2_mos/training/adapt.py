@@ -196,6 +196,22 @@ def _write_part(folder: Path, scan_paths: list[Path], labels: list[Path], poses:
     write_times(folder / "times.txt", times - times[0])
 
 
+#: Beside each drive's cached labels: what they were made from (:func:`labels_made_from`).
+LABELS_MADE_FROM = "labels_made_from.json"
+
+
+def labels_made_from(drive) -> dict:
+    """What a drive's automatic labels depend on: the drive (where it is, how many scans), the autolabel rules and the
+    package version (the online cue's model ships with it). A resumed work folder must hold labels made from the same."""
+    from ros2_mos import __version__
+    from ros2_mos.offline.autolabel import AutolabelConfig
+
+    where = drive.sequence.root if hasattr(drive, "sequence") else drive.path
+    made_from = {"drive": str(Path(where).resolve()), "scans": len(drive),
+                 "autolabel": dataclasses.asdict(AutolabelConfig()), "ros2_mos": __version__}
+    return json.loads(json.dumps(made_from))  # tuples as lists, as they read back
+
+
 def prepare_real(drive, sensor: SensorConfig, work: Path, plan: DrivePlan,
                  progress: Callable[[str, int], None]) -> tuple[str, str]:
     """Autolabel a drive (cached) and split it into a train and a holdout sequence under ``work/data``."""
@@ -204,8 +220,14 @@ def prepare_real(drive, sensor: SensorConfig, work: Path, plan: DrivePlan,
 
     labels_root = work / "autolabel"
     labelled = labels_root / "sequences" / drive.name
+    made_from = labels_made_from(drive)
+    stamp = labelled / LABELS_MADE_FROM
     if not (labelled / "poses.txt").is_file():
         autolabel_drive(drive, labels_root, sensor, "instant", progress=progress)
+        stamp.write_text(json.dumps(made_from, indent=1) + "\n")
+    elif not stamp.is_file() or json.loads(stamp.read_text()) != made_from:
+        raise DatasetError(f"{work}: its labels for {drive.name} were made from another drive or by other autolabel "
+                           f"rules ({stamp.name}); remove the work folder or choose another --work")
     scans_dir = work / "scans" / drive.name
     if hasattr(drive, "sequence"):
         scan_paths = list(drive.sequence.scan_files)
