@@ -16,7 +16,8 @@ from ros2_mos.io.labels import instance_ids, semantic_ids
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, scan_labels
 from ros2_mos.offline.drives import FolderDrive
-from ros2_mos.offline.objects import find_objects, local_ground, voxel_clusters
+from ros2_mos.offline.objects import (ObjectConfig, VehicleReturns, find_objects, local_ground, on_vehicle,
+                                      voxel_clusters)
 from ros2_mos.offline.visibility import neighbourhood_min
 
 runner = CliRunner()
@@ -81,7 +82,7 @@ def test_objects_keep_a_car_and_drop_a_building_and_the_ground():
     assert (found.point_object[4850:] == -1).all()  # 12 m high: not an object
 
 
-def test_kerbs_flat_rings_low_down_and_the_sensor_s_own_vehicle_are_no_objects():
+def test_kerbs_flat_rings_low_down_and_the_sensor_s_own_vehicle_are_no_objects_but_a_van_beside_it_is():
     rng = np.random.default_rng(1)
     ground = np.column_stack([rng.uniform(-30, 30, 4000), rng.uniform(-30, 30, 4000), np.zeros(4000)])
     car = np.column_stack([rng.uniform(5, 9.5, 800), rng.uniform(2, 3.8, 800), rng.uniform(0.35, 1.5, 800)])
@@ -92,18 +93,57 @@ def test_kerbs_flat_rings_low_down_and_the_sensor_s_own_vehicle_are_no_objects()
     # returns from the sensor's own vehicle, 1.4 m away and 0.5 m below the sensor
     own = np.column_stack([np.linspace(-0.8, -0.4, 30), np.full(30, -1.3), np.linspace(1.0, 1.15, 30)])
     pts = np.vstack([ground, car, kerb, ring, body, own]).astype(np.float32)
-    found = find_objects(pts)
+    # a van passing 1.8 m beside the sensor, in 2 of the drive's 10 scans
+    van = np.column_stack([rng.uniform(-2, 2, 300), rng.uniform(1.8, 1.9, 300), rng.uniform(0.4, 2.0, 300)])
+    vehicle = VehicleReturns(ObjectConfig())
+    for k in range(10):
+        jitter = rng.normal(0, 0.02, own.shape)
+        vehicle.add(np.vstack([ground, own + jitter] + ([van] if k < 2 else [])).astype(np.float32), _at(k))
+    pts = np.vstack([ground, car, kerb, ring, body, own, van]).astype(np.float32)
+    found = find_objects(pts, vehicle=vehicle.cells())
     car_ids = set(found.point_object[4000:4800].tolist())
     assert len(car_ids) == 1 and car_ids != {-1}
     kerb_ids = found.point_object[4800:5500]
     assert (kerb_ids[np.abs(pts[4800:5500, 0] - 7.25) > 3] == -1).all()  # the kerb along the street is no object
     assert (found.point_object[5500:5560] == -1).all()  # a cluster flatter than min_height, low, is no object
     assert len(set(found.point_object[5560:5600].tolist()) - {-1}) == 1  # up on a body it is one
-    assert (found.point_object[5600:] == -1).all()  # the sensor's own vehicle is none
+    assert (found.point_object[5600:5630] == -1).all()  # the sensor's own vehicle is none ...
+    assert len(set(found.point_object[5630:].tolist()) - {-1}) == 1  # ... what passes beside it is one
+    assert (find_objects(pts).point_object[5600:5630] >= 0).all()  # (without the drive's vehicle cells: one)
+
+
+def _at(x: float) -> np.ndarray:
+    pose = np.eye(4)
+    pose[0, 3] = x
+    return pose
+
+
+def test_vehicle_returns_are_the_cells_near_the_sensor_held_in_most_scans_while_it_travels():
+    config = ObjectConfig(ego_radius=3.0, ego_cell=0.25, ego_share=0.5, ego_travel=0.5, ego_scans=8)
+    vehicle = VehicleReturns(config)
+    mirror = np.array([[1.1, -1.3, 1.05]], np.float32)  # cell (4, -6, 4)
+    for k in range(20):
+        passing = [[1.6, 0.1, 0.3]] if k < 8 else []  # 4 of the 10 scans counted: under ego_share
+        far = [[3.1, 0.0, 0.0]]  # beyond ego_radius (seen from above), in every scan
+        vehicle.add(np.array([*mirror.tolist(), *passing, *far], np.float32), _at(0.3 * k))  # every 2nd counted
+    assert vehicle.scans == 10
+    cells = vehicle.cells()
+    assert len(cells) == 27  # the mirror's cell and its 26 neighbours
+    probe = np.array([[1.1, -1.3, 1.05], [1.3, -1.3, 1.05], [1.1, -1.05, 0.8], [1.6, -1.3, 1.05],
+                      [1.6, 0.1, 0.3], [3.1, 0.0, 0.0]], np.float32)
+    # its cell, one cell up in x (5, -6, 4), one diagonal (4, -5, 3); two cells away (6, -6, 4); the passer-by; far
+    assert on_vehicle(probe, cells, ObjectConfig()).tolist() == [True, True, True, False, False, False]
+    off = VehicleReturns(ObjectConfig(ego_radius=0.0))
+    off.add(mirror, _at(0.0))
+    assert len(off.cells()) == 0
+    # standing (a jam): the car beside the sensor holds its cell in every scan, but no scan after the first counts
+    standing = VehicleReturns(config)
+    for k in range(50):
+        standing.add(np.array([[0.5, 2.0, 0.0], *mirror.tolist()], np.float32), _at(0.01 * k))
+    assert standing.scans == 1 and len(standing.cells()) == 0  # 0.49 m in all
 
 
 def test_config_is_checked():
-    from ros2_mos.offline.objects import ObjectConfig
     from ros2_mos.offline.tracks import TrackConfig
 
     for bad in ({"near_offsets": (0,)}, {"instant_seen_through": 0.0}, {"instant_seen_through": float("nan")},
@@ -111,10 +151,10 @@ def test_config_is_checked():
         with pytest.raises(ConfigError):
             AutolabelConfig(**bad)
     for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
-                     (TrackConfig, {"gate": -1.0}), (TrackConfig, {"seen_through": 2.0})):
+                     (ObjectConfig, {"ego_share": 1.5}), (ObjectConfig, {"ego_cell": 0.0}), (TrackConfig, {"gate": -1.0}), (TrackConfig, {"seen_through": 2.0})):
         with pytest.raises(ConfigError):
             cls(**bad)
-    AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0))  # zero where zero means something
+    AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0, ego_radius=0.0))  # zero where zero means something
 
 
 def test_box_shift_counts_only_what_both_edges_agree_on():

@@ -36,7 +36,7 @@ from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_conve
 from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
-from ros2_mos.offline.objects import ObjectConfig, check_numbers, find_objects
+from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects
 from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, TrackConfig, Tracker, box_shift
 from ros2_mos.offline.visibility import SeenScan
 
@@ -112,6 +112,8 @@ class AutolabelResult:
     moving_ever: set[tuple[int, int]] = field(default_factory=set)  # (scan, object) of movers where they moved
     cue_model: str = ""  # the online model used as a cue ("" without one)
     cue_skipped: int = 0  # scans the online model refused (ScanError): no cue for them
+    #: sensor-frame cells of the vehicle carrying the sensor (:class:`~ros2_mos.offline.objects.VehicleReturns`)
+    vehicle_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 ProgressFn = Callable[[str, int], None]  # (stage, scans done in it)
@@ -136,17 +138,21 @@ class AutoLabeler:
         n = len(drive)
         if n < MIN_SCANS:
             raise DatasetError(f"{drive.name}: {n} scan(s); autolabel needs at least {MIN_SCANS} (past and future)")
-        poses, stamps, sizes = self._poses(drive, progress)
+        vehicle = VehicleReturns(self.config.objects)
+        poses, stamps, sizes = self._poses(drive, vehicle, progress)
         tracker = Tracker(self.config.tracks)
-        cue_skipped = self._objects_and_evidence(drive, poses, stamps, tracker, workdir, progress)
+        cells = vehicle.cells()
+        cue_skipped = self._objects_and_evidence(drive, poses, stamps, cells, tracker, workdir, progress)
         result = AutolabelResult(drive.name, n, poses, stamps, tracker, tracker.movers(), sizes,
                                  cue_model=self.cue_model.name if self.cue_model is not None else "",
-                                 cue_skipped=cue_skipped)
+                                 cue_skipped=cue_skipped, vehicle_cells=cells)
         result.moving_ever = self._moving_ever(result)
         result.moving_now = self._moving_now(result) & result.moving_ever  # moving now: where it moved at all
         return result
 
-    def _poses(self, drive: Drive, progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    def _poses(self, drive: Drive, vehicle: VehicleReturns,
+               progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int]]:
+        """Step 1: the poses (KISS-ICP's, or the drive's own), and each scan's returns near the sensor to ``vehicle``."""
         from ros2_mos.core.odometry import KissIcpOdometry
 
         use_own = self.config.use_poses
@@ -162,6 +168,7 @@ class AutoLabeler:
                 raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")
             if odometry is not None:
                 poses.append(odometry.register(scan.points))
+            vehicle.add(scan.points, poses[-1] if odometry is not None else drive.poses[scan.index])
             stamps.append(scan.stamp)
             sizes.append(len(scan.points))
             progress("poses", 1)
@@ -195,8 +202,8 @@ class AutoLabeler:
         out[:RESTART_FROM] = anchor @ again[:RESTART_FROM]
         return out
 
-    def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, tracker: Tracker,
-                              workdir: Path, progress: ProgressFn) -> int:
+    def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, vehicle: np.ndarray,
+                              tracker: Tracker, workdir: Path, progress: ProgressFn) -> int:
         """Steps 2 and 3 over the drive; returns how many scans the online cue's model refused."""
         window = self.config.window
         n = len(poses)
@@ -224,7 +231,7 @@ class AutoLabeler:
                         labelled = online.process(points, intensity, float(stamps[k]), pose=poses[k]).labels
                     except ScanError:  # a scan the online model refuses gets no cue; visibility still judges it
                         skipped += 1
-                observations = self._observe(k, points, poses[k], seen, labelled)
+                observations = self._observe(k, points, poses[k], vehicle, seen, labelled)
                 tracker.add_scan(k, float(stamps[k]), last_stamp, observations[1])
                 last_stamp = float(stamps[k])
                 np.save(workdir / f"{k:06d}.npy", observations[0])
@@ -243,12 +250,12 @@ class AutoLabeler:
 
         return MosPipeline(MosConfig(model=str(self.cue_model), sensor=self.sensor))
 
-    def _observe(self, k: int, points: np.ndarray, pose: np.ndarray, seen: dict[int, SeenScan],
+    def _observe(self, k: int, points: np.ndarray, pose: np.ndarray, vehicle: np.ndarray, seen: dict[int, SeenScan],
                  labelled: np.ndarray | None = None) -> tuple[np.ndarray, list[Observation]]:
-        """Scan k's objects (per point ids) and one observation per object (``labelled``: the online model's
-        moving labels of the scan's points, for the cue)."""
+        """Scan k's objects (per point ids; none on the ``vehicle``'s cells) and one observation per object
+        (``labelled``: the online model's moving labels of the scan's points, for the cue)."""
         cfg = self.config
-        found = find_objects(points, cfg.objects)
+        found = find_objects(points, cfg.objects, vehicle)
         on_object = np.flatnonzero((found.point_object >= 0) & ~found.attached)
         obj = found.point_object[on_object]
         counts = found.counts
