@@ -147,7 +147,8 @@ def test_config_is_checked():
     from ros2_mos.offline.tracks import TrackConfig
 
     for bad in ({"near_offsets": (0,)}, {"instant_seen_through": 0.0}, {"instant_seen_through": float("nan")},
-                {"instant_seen_through": 1.5}, {"instant_speed": float("inf")}, {"support_margin": -0.1}):
+                {"instant_seen_through": 1.5}, {"instant_speed": float("inf")}, {"support_margin": -0.1},
+                {"odometry_margin": float("nan")}, {"odometry_margin_share": -0.01}):
         with pytest.raises(ConfigError):
             AutolabelConfig(**bad)
     for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
@@ -365,6 +366,35 @@ def test_autolabel_end_to_end_on_a_simulated_drive(jam, tmp_path, convention):
     assert result.exit_code == 0, result.output
     iou = float(next(line.split()[1] for line in result.output.splitlines() if line.startswith("       all")))
     assert iou > 55.0, result.output  # 30 scans: less past and future than a real drive has
+
+
+def test_kiss_icp_runs_backwards_too_over_clouds_it_keeps_only_while_it_needs_them(jam, tmp_path, monkeypatch):
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.offline.autolabel import progress_steps
+
+    drive = FolderDrive(jam / "sequences" / "00")
+    stages: dict[str, int] = {}
+
+    def count(stage: str, n: int) -> None:
+        stages[stage] = stages.get(stage, 0) + n
+
+    config = AutolabelConfig(online_cue=False)
+    result = AutoLabeler(sensor_preset("vlp32c"), config).label(drive, tmp_path, count)
+    assert stages == {"poses": 30, "backward": 30, "objects": 30} and progress_steps(30, config) == 4 * 30
+    assert result.odometry_followed == "f"  # the passes agree on this drive
+    assert not list(tmp_path.glob("kiss*.npy"))  # the clouds kept for the backward pass are gone
+    one_pass = AutolabelConfig(online_cue=False, backward_odometry=False)
+    stages.clear()
+    (tmp_path / "w2").mkdir()
+    again = AutoLabeler(sensor_preset("vlp32c"), one_pass).label(drive, tmp_path / "w2", count)
+    assert "backward" not in stages and again.odometry_followed == "" and progress_steps(30, one_pass) == 3 * 30
+    np.testing.assert_allclose(again.poses, result.poses)  # the forward pass's poses either way
+    # where the backward pass is taken, the command says so
+    import ros2_mos.offline.autolabel as autolabel_module
+
+    monkeypatch.setattr(autolabel_module, "farther_pass", lambda forward, backward, *margins: (backward, "b"))
+    out = runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(tmp_path / "o")])
+    assert out.exit_code == 0 and "KISS-ICP run backwards" in out.output, out.output
 
 
 def test_autolabel_refuses_bad_input_with_one_line_and_writes_nothing(jam, tmp_path):

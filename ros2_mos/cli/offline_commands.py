@@ -31,7 +31,7 @@ def autolabel(
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.core.sensor_check import closest_preset, cloud_shape
     from ros2_mos.io.conventions import CONVENTIONS
-    from ros2_mos.offline.autolabel import AutolabelConfig, autolabel_drive
+    from ros2_mos.offline.autolabel import AutolabelConfig, autolabel_drive, progress_steps
     from ros2_mos.offline.drives import open_drive
 
     if convention not in CONVENTIONS:
@@ -57,7 +57,7 @@ def autolabel(
             spec = sensor_preset(sensor)
         n = len(drive)
         start = time.perf_counter()
-        with tqdm(total=3 * n, desc=f"{drive.name} ({spec.name})", unit="step") as bar:
+        with tqdm(total=progress_steps(n, config), desc=f"{drive.name} ({spec.name})", unit="step") as bar:
             def step(stage: str, done: int) -> None:
                 bar.set_postfix_str(stage, refresh=False)
                 bar.update(done)
@@ -67,5 +67,6 @@ def autolabel(
         cue = f"online cue {result.cue_model}" if result.cue_model else "no online cue"
         if result.cue_skipped:
             cue += f" ({result.cue_skipped} scans it refused went without)"
+        poses = ", poses from KISS-ICP run backwards (forwards it fell behind)" if result.odometry_followed == "b" else ""
         typer.echo(f"wrote {folder}: {n} scans, {len(result.movers)} movers, {100 * share:.2f} % of points moving "
-                   f"({convention}), {cue}, {n / seconds:.1f} scans/s")
+                   f"({convention}), {cue}{poses}, {n / seconds:.1f} scans/s")

@@ -209,7 +209,10 @@ def adapt(
     work_dir.mkdir(parents=True, exist_ok=True)
     from tqdm import tqdm
 
-    steps = 3 * sum(d.scans for d in plan.drives) + plan.sim_train + config.sim_holdout * config.sim_scans
+    from ros2_mos.offline.autolabel import AutolabelConfig, progress_steps
+
+    steps = (sum(progress_steps(d.scans, AutolabelConfig()) for d in plan.drives) + plan.sim_train
+             + config.sim_holdout * config.sim_scans)
     with tqdm(total=steps, desc="prepare (labels, simulated drives)", unit="scan") as bar:
         def step(stage: str, n: int) -> None:
             bar.set_postfix_str(stage, refresh=False)

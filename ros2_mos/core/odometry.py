@@ -101,6 +101,9 @@ class KissIcpOdometry:
         kiss.last_delta = np.linalg.inv(kiss.last_pose) @ new_pose
         kiss.last_pose = new_pose
         self._pending_frame = frame_downsample
+        #: the scan as KISS-ICP keeps it (thinned, range-filtered, one point per half voxel): registered again with
+        #: ``point_stride`` 1 it registers like the scan (autolabel's backward pass keeps these, not whole scans)
+        self.last_frame = frame_downsample
         return new_pose.copy()
 
     def _align(self, source: np.ndarray, initial_guess: np.ndarray, sigma: float) -> np.ndarray:

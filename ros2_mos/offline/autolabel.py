@@ -19,12 +19,13 @@ The steps (:meth:`AutoLabeler.label`), each a stage built once:
 from __future__ import annotations
 
 import csv
+import dataclasses
 import shutil
 import tempfile
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 
@@ -38,6 +39,7 @@ from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects
 from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, TrackConfig, Tracker, box_shift
+from ros2_mos.offline.trajectory import farther_pass
 from ros2_mos.offline.visibility import SeenScan
 
 if TYPE_CHECKING:
@@ -79,6 +81,12 @@ class AutolabelConfig:
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
     support_margin: float = 0.3
     use_poses: bool = False  # the drive's own poses instead of KISS-ICP
+    #: KISS-ICP also over the drive backwards; its poses are taken when it travelled farther than the forward pass
+    #: by ``odometry_margin`` m and ``odometry_margin_share`` of the path: the forward pass falls behind where a jam
+    #: moves off (:mod:`ros2_mos.offline.trajectory`)
+    backward_odometry: bool = True
+    odometry_margin: float = 0.75
+    odometry_margin_share: float = 0.02
     #: The online model (the one shipped for the sensor) labels each scan too, with autolabel's poses: a track that
     #: visibility does not make a mover is one when the model labels it moving often enough (``TrackConfig.cue_share``).
     online_cue: bool = True
@@ -90,7 +98,8 @@ class AutolabelConfig:
         if self.instant_motion not in INSTANT_MOTION:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
-        check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin"),
+        check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin", "odometry_margin",
+                                                      "odometry_margin_share"),
                       at_most_one=("instant_seen_through",))
 
     @property
@@ -114,9 +123,45 @@ class AutolabelResult:
     cue_skipped: int = 0  # scans the online model refused (ScanError): no cue for them
     #: sensor-frame cells of the vehicle carrying the sensor (:class:`~ros2_mos.offline.objects.VehicleReturns`)
     vehicle_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: the KISS-ICP pass the poses are: 'f' forwards, 'b' backwards ("" with the drive's own poses or one pass)
+    odometry_followed: str = ""
 
 
 ProgressFn = Callable[[str, int], None]  # (stage, scans done in it)
+
+
+def progress_steps(scans: int, config: AutolabelConfig) -> int:
+    """How many progress steps labelling a drive of ``scans`` scans reports: poses, objects and labels per scan, and
+    the backward KISS-ICP pass where there is one."""
+    passes = 4 if config.backward_odometry and not config.use_poses else 3
+    return passes * scans
+
+
+def _restart(clouds: Iterator[np.ndarray], poses: np.ndarray, config: OdometryConfig) -> np.ndarray:
+    """Register a pass's first scans again (``clouds`` in the pass's order), knowing how fast it moved.
+
+    KISS-ICP starts from rest: when the drive starts under way, the first scans are registered a step or more
+    off (0.7-1.2 m measured on a simulated drive starting at 7.7 m/s) and would see through everything that
+    stands. They are registered again from a start with the velocity of scans :data:`RESTART_FROM` on, and
+    chained to the first pass's poses there. (Backwards, the drive's end is that pass's start.)
+    """
+    from ros2_mos.core.odometry import KissIcpOdometry
+
+    n = len(poses)
+    if n <= RESTART_SCANS:
+        return poses
+    odometry = KissIcpOdometry(config)
+    odometry.assume_motion(np.linalg.inv(poses[RESTART_FROM]) @ poses[RESTART_FROM + 1])
+    again = []
+    for cloud in clouds:
+        if len(again) >= RESTART_SCANS:
+            break
+        again.append(odometry.register(cloud))
+    again = np.asarray(again)
+    anchor = poses[RESTART_FROM] @ np.linalg.inv(again[RESTART_FROM])
+    out = poses.copy()
+    out[:RESTART_FROM] = anchor @ again[:RESTART_FROM]
+    return out
 
 
 class AutoLabeler:
@@ -139,26 +184,29 @@ class AutoLabeler:
         if n < MIN_SCANS:
             raise DatasetError(f"{drive.name}: {n} scan(s); autolabel needs at least {MIN_SCANS} (past and future)")
         vehicle = VehicleReturns(self.config.objects)
-        poses, stamps, sizes = self._poses(drive, vehicle, progress)
+        poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
         tracker = Tracker(self.config.tracks)
         cells = vehicle.cells()
         cue_skipped = self._objects_and_evidence(drive, poses, stamps, cells, tracker, workdir, progress)
         result = AutolabelResult(drive.name, n, poses, stamps, tracker, tracker.movers(), sizes,
                                  cue_model=self.cue_model.name if self.cue_model is not None else "",
-                                 cue_skipped=cue_skipped, vehicle_cells=cells)
+                                 cue_skipped=cue_skipped, vehicle_cells=cells, odometry_followed=followed)
         result.moving_ever = self._moving_ever(result)
         result.moving_now = self._moving_now(result) & result.moving_ever  # moving now: where it moved at all
         return result
 
-    def _poses(self, drive: Drive, vehicle: VehicleReturns,
-               progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int]]:
-        """Step 1: the poses (KISS-ICP's, or the drive's own), and each scan's returns near the sensor to ``vehicle``."""
+    def _poses(self, drive: Drive, vehicle: VehicleReturns, workdir: Path,
+               progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int], str]:
+        """Step 1: the poses (KISS-ICP's forwards, and backwards over the clouds it kept in ``workdir``; or the
+        drive's own), the stamps, the point counts and which KISS-ICP pass the poses are ('f' or 'b':
+        :func:`farther_pass`; "" with one pass); each scan's returns near the sensor go to ``vehicle``."""
         from ros2_mos.core.odometry import KissIcpOdometry
 
         use_own = self.config.use_poses
         if use_own and drive.poses is None:
             raise DatasetError(f"{drive.name}: --use-poses, but the drive has no poses.txt")
         odometry = None if use_own else KissIcpOdometry(self.odometry_config)
+        keep = not use_own and self.config.backward_odometry
         poses, stamps, sizes = [], [], []
         for scan in drive:
             if len(scan.points) == 0:
@@ -168,39 +216,38 @@ class AutoLabeler:
                 raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")
             if odometry is not None:
                 poses.append(odometry.register(scan.points))
+                if keep:
+                    np.save(workdir / f"kiss{scan.index:06d}.npy", odometry.last_frame)
             vehicle.add(scan.points, poses[-1] if odometry is not None else drive.poses[scan.index])
             stamps.append(scan.stamp)
             sizes.append(len(scan.points))
             progress("poses", 1)
         if use_own:
-            return np.asarray(drive.poses[: len(stamps)], np.float64), np.asarray(stamps), sizes
-        return self._restart(drive, np.asarray(poses, np.float64)), np.asarray(stamps), sizes
+            return np.asarray(drive.poses[: len(stamps)], np.float64), np.asarray(stamps), sizes, ""
+        forward = _restart((scan.points for scan in drive), np.asarray(poses, np.float64), self.odometry_config)
+        if not keep:
+            return forward, np.asarray(stamps), sizes, ""
+        backward = self._backward(workdir, len(forward), progress)
+        poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
+                                       self.config.odometry_margin_share)
+        return poses, np.asarray(stamps), sizes, followed
 
-    def _restart(self, drive: Drive, poses: np.ndarray) -> np.ndarray:
-        """Register the drive's first scans again, knowing how fast it moved.
-
-        KISS-ICP starts from rest: when the drive starts under way, the first scans are registered a step or more
-        off (0.7-1.2 m measured on a simulated drive starting at 7.7 m/s) and would see through everything that
-        stands. They are registered again from a start with the velocity of scans :data:`RESTART_FROM` on, and
-        chained to the first pass's poses there.
-        """
+    def _backward(self, workdir: Path, n: int, progress: ProgressFn) -> np.ndarray:
+        """KISS-ICP over the clouds the forward pass kept, last scan first (then deleted); poses in scan order."""
         from ros2_mos.core.odometry import KissIcpOdometry
 
-        n = len(poses)
-        if n <= RESTART_SCANS:
-            return poses
-        odometry = KissIcpOdometry(self.odometry_config)
-        odometry.assume_motion(np.linalg.inv(poses[RESTART_FROM]) @ poses[RESTART_FROM + 1])
-        again = []
-        for scan in drive:
-            if scan.index >= RESTART_SCANS:
-                break
-            again.append(odometry.register(scan.points))
-        again = np.asarray(again)
-        anchor = poses[RESTART_FROM] @ np.linalg.inv(again[RESTART_FROM])
-        out = poses.copy()
-        out[:RESTART_FROM] = anchor @ again[:RESTART_FROM]
-        return out
+        config = dataclasses.replace(self.odometry_config, point_stride=1)  # the kept clouds are thinned already
+        paths = [workdir / f"kiss{k:06d}.npy" for k in range(n - 1, -1, -1)]
+        odometry = KissIcpOdometry(config)
+        poses = []
+        for path in paths:
+            poses.append(odometry.register(np.load(path)))
+            progress("backward", 1)
+        poses = _restart((np.load(path) for path in paths), np.asarray(poses), config)
+        for path in paths:
+            path.unlink()
+        return poses[::-1].copy()
+
 
     def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, vehicle: np.ndarray,
                               tracker: Tracker, workdir: Path, progress: ProgressFn) -> int:

@@ -1,0 +1,43 @@
+"""One trajectory from KISS-ICP run over a drive forwards and backwards.
+
+KISS-ICP falls behind when the sensor starts to move together with the traffic around it (a jam moving off: the
+cars it registers against move with it, and its map was built while they stood), and catches up only partly: on
+the simulated traffic_jam-9201 the forward poses stay 1.1 m behind for the rest of the drive. Run backwards, that
+moment is a stop, which it follows. A pass that fell behind travelled less: the drive's poses are the backward
+pass's when it travelled clearly farther (``margin`` metres and ``margin_share`` of the path), else the forward
+pass's. On the 26 validation drives the two passes' paths differ by 0.54 m at most (0.9 %) and neither is the
+better one there; on traffic_jam-9201 the backward pass travelled 1.19 m (4.4 %) farther, and was right.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ros2_mos.core.errors import ConfigError
+
+#: The path is measured in straight steps of this many scans (single scan-to-scan steps add their noise).
+PATH_STEP = 5
+
+
+def path_length(poses: np.ndarray, step: int = PATH_STEP) -> float:
+    """Metres travelled along (N, 4, 4) poses, summed over straight steps of ``step`` scans."""
+    poses = np.asarray(poses, np.float64)
+    ends = [*range(0, len(poses) - 1, step), len(poses) - 1] if len(poses) > 1 else []
+    return float(sum(np.linalg.norm(poses[b, :3, 3] - poses[a, :3, 3]) for a, b in zip(ends, ends[1:])))
+
+
+def farther_pass(forward: np.ndarray, backward: np.ndarray, margin: float,
+                 margin_share: float) -> tuple[np.ndarray, str]:
+    """The poses of the pass that travelled clearly farther: the backward pass's when its path is longer than the
+    forward pass's by more than ``margin`` metres and ``margin_share`` of it, moved into the forward pass's frame
+    (scan 0 where the forward pass put it); else the forward pass's. Returns the poses and 'b' or 'f'."""
+    forward, backward = np.asarray(forward, np.float64), np.asarray(backward, np.float64)
+    if forward.shape != backward.shape or forward.ndim != 3 or forward.shape[1:] != (4, 4) or len(forward) == 0:
+        raise ConfigError(f"farther_pass needs two (N, 4, 4) pose arrays of one shape, N > 0, got {forward.shape} "
+                          f"and {backward.shape}")
+    if not (np.isfinite(margin) and np.isfinite(margin_share) and margin >= 0 and margin_share >= 0):
+        raise ConfigError(f"farther_pass needs finite margins >= 0, got {margin} and {margin_share}")
+    ahead = path_length(backward) - path_length(forward)
+    if ahead > margin and ahead > margin_share * path_length(forward):
+        return forward[0] @ np.linalg.inv(backward[0]) @ backward, "b"
+    return forward.copy(), "f"
