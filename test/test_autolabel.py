@@ -369,29 +369,33 @@ def test_autolabel_end_to_end_on_a_simulated_drive(jam, tmp_path, convention):
 
 
 def test_kiss_icp_runs_backwards_too_over_clouds_it_keeps_only_while_it_needs_them(jam, tmp_path, monkeypatch):
+    import ros2_mos.offline.autolabel as autolabel_module
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.offline.autolabel import progress_steps
 
     drive = FolderDrive(jam / "sequences" / "00")
-    stages: dict[str, int] = {}
-
-    def count(stage: str, n: int) -> None:
-        stages[stage] = stages.get(stage, 0) + n
-
     config = AutolabelConfig(online_cue=False)
-    result = AutoLabeler(sensor_preset("vlp32c"), config).label(drive, tmp_path, count)
-    assert stages == {"poses": 30, "backward": 30, "objects": 30} and progress_steps(30, config) == 4 * 30
-    assert result.odometry_followed == "f"  # the passes agree on this drive
-    assert not list(tmp_path.glob("kiss*.npy"))  # the clouds kept for the backward pass are gone
-    one_pass = AutolabelConfig(online_cue=False, backward_odometry=False)
-    stages.clear()
-    (tmp_path / "w2").mkdir()
-    again = AutoLabeler(sensor_preset("vlp32c"), one_pass).label(drive, tmp_path / "w2", count)
-    assert "backward" not in stages and again.odometry_followed == "" and progress_steps(30, one_pass) == 3 * 30
-    np.testing.assert_allclose(again.poses, result.poses)  # the forward pass's poses either way
-    # where the backward pass is taken, the command says so
-    import ros2_mos.offline.autolabel as autolabel_module
+    runs = {}
+    for stood in (True, False):  # the sensor stood and moved off, or not: the backward pass runs, or not
+        monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps, stood=stood: stood)
+        stages: dict[str, int] = {}
 
+        def count(stage: str, n: int, stages=stages) -> None:
+            stages[stage] = stages.get(stage, 0) + n
+
+        work = tmp_path / str(stood)
+        work.mkdir()
+        runs[stood] = AutoLabeler(sensor_preset("vlp32c"), config).label(drive, work, count)
+        assert stages == {"poses": 30, "backward": 30, "objects": 30}  # the bar fills either way
+        assert not list(work.glob("kiss*.npy"))  # the clouds kept for the backward pass are gone
+    assert progress_steps(30, config) == 4 * 30
+    assert runs[True].odometry_followed == "f"  # run, and the passes agree on this drive
+    assert runs[False].odometry_followed == ""  # not run
+    np.testing.assert_allclose(runs[True].poses, runs[False].poses)  # the forward pass's poses either way
+    one_pass = AutolabelConfig(online_cue=False, backward_odometry=False)
+    assert progress_steps(30, one_pass) == 3 * 30
+    # where the backward pass is taken, the command says so
+    monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps: True)
     monkeypatch.setattr(autolabel_module, "farther_pass", lambda forward, backward, *margins: (backward, "b"))
     out = runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(tmp_path / "o")])
     assert out.exit_code == 0 and "KISS-ICP run backwards" in out.output, out.output

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ros2_mos.core.errors import ConfigError
-from ros2_mos.offline.trajectory import farther_pass, path_length
+from ros2_mos.offline.trajectory import farther_pass, path_length, starts_from_rest
 
 
 def _along_x(steps: list[float], frame: np.ndarray = np.eye(4)) -> np.ndarray:
@@ -67,3 +67,16 @@ def test_bad_input_is_refused():
     for margin, share in ((float("nan"), 0.02), (0.75, float("inf")), (-1.0, 0.02)):
         with pytest.raises(ConfigError, match="finite margins"):
             farther_pass(poses, poses, margin, share)
+
+
+def test_a_backward_pass_is_wanted_only_where_the_sensor_stood_and_moved_off():
+    stamps = np.arange(61) * 0.1
+    stands_then_drives = _along_x([0.0] * 20 + [0.3] * 40)  # 2 s standing, then 3 m/s
+    assert starts_from_rest(stands_then_drives, stamps)
+    assert not starts_from_rest(_along_x([0.5] * 60), stamps)  # 5 m/s throughout
+    assert not starts_from_rest(_along_x([0.3] * 20 + [0.0] * 40), stamps)  # drives, then stops: no start
+    # stands 0.5 s only (the 5-scan speeds stand still for 1 scan of it): not a start from rest
+    assert not starts_from_rest(_along_x([0.3] * 20 + [0.0] * 5 + [0.3] * 35), stamps)
+    # speeding up slowly after the stand (0.05 m/s, then 3 m/s) still counts
+    assert starts_from_rest(_along_x([0.0] * 15 + [0.005] * 10 + [0.3] * 35), stamps)
+    assert not starts_from_rest(_along_x([0.0] * 3), stamps[:4])  # too short to tell

@@ -39,7 +39,7 @@ from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects
 from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, TrackConfig, Tracker, box_shift
-from ros2_mos.offline.trajectory import farther_pass
+from ros2_mos.offline.trajectory import farther_pass, starts_from_rest
 from ros2_mos.offline.visibility import SeenScan
 
 if TYPE_CHECKING:
@@ -81,9 +81,9 @@ class AutolabelConfig:
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
     support_margin: float = 0.3
     use_poses: bool = False  # the drive's own poses instead of KISS-ICP
-    #: KISS-ICP also over the drive backwards; its poses are taken when it travelled farther than the forward pass
-    #: by ``odometry_margin`` m and ``odometry_margin_share`` of the path: the forward pass falls behind where a jam
-    #: moves off (:mod:`ros2_mos.offline.trajectory`)
+    #: KISS-ICP also over the drive backwards where the sensor stood and moved off; its poses are taken when it
+    #: travelled farther than the forward pass by ``odometry_margin`` m and ``odometry_margin_share`` of the path:
+    #: the forward pass falls behind where a jam moves off (:mod:`ros2_mos.offline.trajectory`)
     backward_odometry: bool = True
     odometry_margin: float = 0.75
     odometry_margin_share: float = 0.02
@@ -199,7 +199,8 @@ class AutoLabeler:
                progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int], str]:
         """Step 1: the poses (KISS-ICP's forwards, and backwards over the clouds it kept in ``workdir``; or the
         drive's own), the stamps, the point counts and which KISS-ICP pass the poses are ('f' or 'b':
-        :func:`farther_pass`; "" with one pass); each scan's returns near the sensor go to ``vehicle``."""
+        :func:`farther_pass`; "" with one pass: the backward one runs only where the sensor stood and moved off);
+        each scan's returns near the sensor go to ``vehicle``."""
         from ros2_mos.core.odometry import KissIcpOdometry
 
         use_own = self.config.use_poses
@@ -225,12 +226,18 @@ class AutoLabeler:
         if use_own:
             return np.asarray(drive.poses[: len(stamps)], np.float64), np.asarray(stamps), sizes, ""
         forward = _restart((scan.points for scan in drive), np.asarray(poses, np.float64), self.odometry_config)
+        stamps = np.asarray(stamps)
         if not keep:
-            return forward, np.asarray(stamps), sizes, ""
+            return forward, stamps, sizes, ""
+        if not starts_from_rest(forward, stamps):  # nothing for KISS-ICP to fall behind at
+            for path in workdir.glob("kiss*.npy"):
+                path.unlink()
+            progress("backward", len(forward))
+            return forward, stamps, sizes, ""
         backward = self._backward(workdir, len(forward), progress)
         poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
                                        self.config.odometry_margin_share)
-        return poses, np.asarray(stamps), sizes, followed
+        return poses, stamps, sizes, followed
 
     def _backward(self, workdir: Path, n: int, progress: ProgressFn) -> np.ndarray:
         """KISS-ICP over the clouds the forward pass kept, last scan first (then deleted); poses in scan order."""
