@@ -16,8 +16,14 @@ from ros2_mos.io.labels import instance_ids, semantic_ids
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, scan_labels
 from ros2_mos.offline.drives import FolderDrive
-from ros2_mos.offline.objects import (ObjectConfig, VehicleReturns, find_objects, local_ground, on_vehicle,
-                                      voxel_clusters)
+from ros2_mos.offline.objects import (
+    ObjectConfig,
+    VehicleReturns,
+    find_objects,
+    local_ground,
+    on_vehicle,
+    voxel_clusters,
+)
 from ros2_mos.offline.visibility import neighbourhood_min
 
 runner = CliRunner()
@@ -152,10 +158,12 @@ def test_config_is_checked():
         with pytest.raises(ConfigError):
             AutolabelConfig(**bad)
     for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
-                     (ObjectConfig, {"ego_share": 1.5}), (ObjectConfig, {"ego_cell": 0.0}), (TrackConfig, {"gate": -1.0}), (TrackConfig, {"seen_through": 2.0})):
+                     (ObjectConfig, {"ego_share": 1.5}), (ObjectConfig, {"ego_cell": 0.0}),
+                     (TrackConfig, {"gate": -1.0}), (TrackConfig, {"seen_through": 2.0})):
         with pytest.raises(ConfigError):
             cls(**bad)
-    AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0, ego_radius=0.0))  # zero where zero means something
+    # zero where zero means something
+    AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0, ego_radius=0.0))
 
 
 def test_box_shift_counts_only_what_both_edges_agree_on():

@@ -67,6 +67,7 @@ def autolabel(
         cue = f"online cue {result.cue_model}" if result.cue_model else "no online cue"
         if result.cue_skipped:
             cue += f" ({result.cue_skipped} scans it refused went without)"
-        poses = ", poses from KISS-ICP run backwards (forwards it fell behind)" if result.odometry_followed == "b" else ""
+        backwards = result.odometry_followed == "b"
+        poses = ", poses from KISS-ICP run backwards (forwards it fell behind)" if backwards else ""
         typer.echo(f"wrote {folder}: {n} scans, {len(result.movers)} movers, {100 * share:.2f} % of points moving "
                    f"({convention}), {cue}{poses}, {n / seconds:.1f} scans/s")

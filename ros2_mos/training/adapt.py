@@ -202,7 +202,8 @@ LABELS_MADE_FROM = "labels_made_from.json"
 
 def labels_made_from(drive) -> dict:
     """What a drive's automatic labels depend on: the drive (where it is, how many scans), the autolabel rules and the
-    package version (the online cue's model ships with it). A resumed work folder must hold labels made from the same."""
+    package version (the online cue's model ships with it). A resumed work folder must hold labels made from the
+    same."""
     from ros2_mos import __version__
     from ros2_mos.offline.autolabel import AutolabelConfig
 
