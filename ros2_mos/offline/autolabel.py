@@ -2,7 +2,9 @@
 
 The steps (:meth:`AutoLabeler.label`), each a stage built once:
 
-1. **Poses**: KISS-ICP over the drive (or the drive's own poses).
+1. **Poses**: KISS-ICP over the drive (or the drive's own poses); where the sensor stood and moved off, KISS-ICP
+   backwards too, and the pass that did not fall behind (:mod:`~ros2_mos.offline.trajectory`). The same pass finds
+   the returns of the vehicle carrying the sensor (:class:`~ros2_mos.offline.objects.VehicleReturns`).
 2. **Objects and evidence**, in a window sliding over the drive: each scan's ground is removed and the rest cut into
    object-sized segments (:mod:`~ros2_mos.offline.objects`); each object's points are checked against the range
    images of scans before and after it (:mod:`~ros2_mos.offline.visibility`): where those scans saw through the
@@ -254,7 +256,6 @@ class AutoLabeler:
         for path in paths:
             path.unlink()
         return poses[::-1].copy()
-
 
     def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, vehicle: np.ndarray,
                               tracker: Tracker, workdir: Path, progress: ProgressFn) -> int:

@@ -145,16 +145,16 @@ def split_long_clusters(points: np.ndarray, cluster: np.ndarray, config: ObjectC
     return np.unique(out, return_inverse=True)[1].reshape(-1)
 
 
+_EGO_OFFSET = 1 << 15  # cell indices (clipped to +-2^15) made non-negative before they are packed into one key
+_EGO_SPAN = 1 << 16
+
+
 def _ego_keys(points: np.ndarray, config: ObjectConfig) -> tuple[np.ndarray, np.ndarray]:
     """(indices of the points within ``ego_radius`` of the sensor seen from above, their sensor-frame cell keys)."""
     near = np.flatnonzero(np.einsum("ij,ij->i", points[:, :2], points[:, :2]) < config.ego_radius**2)
     scaled = np.clip(points[near, :3] / config.ego_cell, 2 - _EGO_OFFSET, _EGO_OFFSET - 2)
     ijk = np.floor(scaled).astype(np.int64) + _EGO_OFFSET
     return near, (ijk[:, 0] * _EGO_SPAN + ijk[:, 1]) * _EGO_SPAN + ijk[:, 2]
-
-
-_EGO_OFFSET = 1 << 15  # cell indices (clipped to +-2^15) made non-negative before they are packed into one key
-_EGO_SPAN = 1 << 16
 
 
 class VehicleReturns:
