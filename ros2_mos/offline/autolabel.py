@@ -231,18 +231,19 @@ class AutoLabeler:
         stamps = np.asarray(stamps)
         if not keep:
             return forward, stamps, sizes, ""
-        if not starts_from_rest(forward, stamps):  # nothing for KISS-ICP to fall behind at
-            for path in workdir.glob("kiss*.npy"):
-                path.unlink()
+        poses, followed = forward, ""
+        if starts_from_rest(forward, stamps):  # else there is nothing for KISS-ICP to fall behind at
+            backward = self._backward(workdir, len(forward), progress)
+            poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
+                                           self.config.odometry_margin_share)
+        else:
             progress("backward", len(forward))
-            return forward, stamps, sizes, ""
-        backward = self._backward(workdir, len(forward), progress)
-        poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
-                                       self.config.odometry_margin_share)
+        for path in workdir.glob("kiss*.npy"):  # the clouds kept for the backward pass
+            path.unlink()
         return poses, stamps, sizes, followed
 
     def _backward(self, workdir: Path, n: int, progress: ProgressFn) -> np.ndarray:
-        """KISS-ICP over the clouds the forward pass kept, last scan first (then deleted); poses in scan order."""
+        """KISS-ICP over the clouds the forward pass kept, last scan first; poses in scan order."""
         from ros2_mos.core.odometry import KissIcpOdometry
 
         config = dataclasses.replace(self.odometry_config, point_stride=1)  # the kept clouds are thinned already
@@ -253,8 +254,6 @@ class AutoLabeler:
             poses.append(odometry.register(np.load(path)))
             progress("backward", 1)
         poses = _restart((np.load(path) for path in paths), np.asarray(poses), config)
-        for path in paths:
-            path.unlink()
         return poses[::-1].copy()
 
     def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, vehicle: np.ndarray,

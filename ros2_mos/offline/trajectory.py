@@ -59,7 +59,8 @@ def farther_pass(forward: np.ndarray, backward: np.ndarray, margin: float,
                           f"and {backward.shape}")
     if not (np.isfinite(margin) and np.isfinite(margin_share) and margin >= 0 and margin_share >= 0):
         raise ConfigError(f"farther_pass needs finite margins >= 0, got {margin} and {margin_share}")
-    ahead = path_length(backward) - path_length(forward)
-    if ahead > margin and ahead > margin_share * path_length(forward):
+    forward_path = path_length(forward)
+    ahead = path_length(backward) - forward_path
+    if ahead > margin and ahead > margin_share * forward_path:
         return forward[0] @ np.linalg.inv(backward[0]) @ backward, "b"
     return forward.copy(), "f"
