@@ -123,8 +123,6 @@ class AutolabelResult:
     moving_ever: set[tuple[int, int]] = field(default_factory=set)  # (scan, object) of movers where they moved
     cue_model: str = ""  # the online model used as a cue ("" without one)
     cue_skipped: int = 0  # scans the online model refused (ScanError): no cue for them
-    #: sensor-frame cells of the vehicle carrying the sensor (:class:`~ros2_mos.offline.objects.VehicleReturns`)
-    vehicle_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     #: the KISS-ICP pass the poses are: 'f' forwards, 'b' backwards ("" with the drive's own poses or one pass)
     odometry_followed: str = ""
 
@@ -188,11 +186,10 @@ class AutoLabeler:
         vehicle = VehicleReturns(self.config.objects)
         poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
         tracker = Tracker(self.config.tracks)
-        cells = vehicle.cells()
-        cue_skipped = self._objects_and_evidence(drive, poses, stamps, cells, tracker, workdir, progress)
+        cue_skipped = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir, progress)
         result = AutolabelResult(drive.name, n, poses, stamps, tracker, tracker.movers(), sizes,
                                  cue_model=self.cue_model.name if self.cue_model is not None else "",
-                                 cue_skipped=cue_skipped, vehicle_cells=cells, odometry_followed=followed)
+                                 cue_skipped=cue_skipped, odometry_followed=followed)
         result.moving_ever = self._moving_ever(result)
         result.moving_now = self._moving_now(result) & result.moving_ever  # moving now: where it moved at all
         return result
