@@ -13,6 +13,7 @@ from ros2_mos.core.config import (
     ResidualConfig,
     SensorConfig,
     estimate_fov,
+    lidar_of,
     sensor_preset,
 )
 from ros2_mos.core.errors import ConfigError
@@ -22,6 +23,14 @@ def test_hdl64_preset_matches_lidar_mos():
     s = sensor_preset("HDL64")
     assert (s.height, s.width, s.fov_up_deg, s.fov_down_deg) == (64, 2048, 3.0, -25.0)
     assert {"vlp16", "vlp32c", "os1-64", "os1-128"} <= set(SENSOR_PRESETS)
+
+
+def test_a_models_coarser_image_maps_back_to_its_lidar():
+    half = SensorConfig("hdl64", 64, 1024, 3.0, -25.0)
+    assert lidar_of(half) is sensor_preset("hdl64")  # 64 x 2048: what the LiDAR fires
+    for other in (SensorConfig("hdl64", 32, 1024, 3.0, -25.0), SensorConfig("custom", 64, 1024, 3.0, -25.0),
+                  SensorConfig("hdl64", 64, 1024, 2.0, -25.0)):
+        assert lidar_of(other) is other
 
 
 def test_unknown_preset_lists_the_known_ones():

@@ -15,7 +15,7 @@ from ros2_mos.core.config import (
 )
 from ros2_mos.core.errors import ConfigError, ImplausibleScanError, ModelError, ScanError
 from ros2_mos.core.inference import MosModel
-from ros2_mos.core.pipeline import MosPipeline
+from ros2_mos.core.pipeline import MosPipeline, image_sensor
 from ros2_mos.core.projection import project
 from ros2_mos.scoring.metrics import MovingIoU
 
@@ -170,6 +170,21 @@ def test_sensor_with_other_beam_count_than_the_model_is_refused(tiny_model_path)
     other = SensorConfig("other", 16, 512, 10.0, -20.0)
     with pytest.raises(ConfigError, match="trained for"):
         MosPipeline(MosConfig(model=str(tiny_model_path), sensor=other))
+
+
+def test_a_model_of_the_configured_lidar_brings_its_own_columns(tiny_model_path):
+    # The tiny model is trained for test32 at 32 x 512; the same LiDAR configured at 1024 columns (a preset's
+    # image) projects at the model's 512, keeping the configured range limits. Another LiDAR stays refused.
+    wider = SensorConfig("test32", 32, 1024, 10.0, -20.0, min_range=1.5, max_range=80.0)
+    assert image_sensor(wider, TEST_SENSOR) == SensorConfig("test32", 32, 512, 10.0, -20.0, 1.5, 80.0)
+    assert image_sensor(None, TEST_SENSOR) is TEST_SENSOR
+    pipeline = MosPipeline(MosConfig(model=str(tiny_model_path), sensor=wider))
+    assert (pipeline.sensor.width, pipeline.sensor.max_range) == (512, 80.0)
+    pts, rem, _, pose = street_sequence(1)[0]
+    assert pipeline.process(pts, rem, 0.0, pose=pose).range_image.shape == (32, 512)
+    for other in (SensorConfig("other", 32, 1024, 10.0, -20.0), SensorConfig("test32", 32, 1024, 12.0, -20.0)):
+        with pytest.raises(ConfigError, match="projects to 32 x 1024 but the model was trained for test32 at 32 x 512"):
+            image_sensor(other, TEST_SENSOR)
 
 
 def test_nearest_and_knn_modes_both_label_every_point(tiny_model_path):

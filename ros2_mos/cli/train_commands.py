@@ -179,7 +179,7 @@ def adapt(
     """Fine-tune the online model on your own unlabelled drives, with labels made by `ros2-mos autolabel`."""
     import math
 
-    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.core.config import lidar_of, sensor_preset
     from ros2_mos.core.inference import MosModel, default_model_path
     from ros2_mos.offline.drives import open_drive
     from ros2_mos.training.adapt import AdaptConfig, plan_adaptation
@@ -197,7 +197,7 @@ def adapt(
         base = model if model is not None else default_model_path(spec.name)
     else:
         base = model if model is not None else default_model_path(None)
-        spec = MosModel(str(base)).metadata.sensor
+        spec = lidar_of(MosModel(str(base)).metadata.sensor)  # the LiDAR's clouds, not the model's image
     opened = [open_drive(d, topic) for d in drives]
     config = AdaptConfig(epochs=epochs, holdout=holdout, sim_drives=sim_drives, max_minutes=max_minutes)
     plan = plan_adaptation(opened, Path(base), spec, config)

@@ -187,6 +187,17 @@ def sensor_preset(name: str) -> SensorConfig:
         raise ConfigError(f"unknown sensor preset {name!r}; known presets: {', '.join(SENSOR_PRESETS)}") from None
 
 
+def lidar_of(sensor: SensorConfig) -> SensorConfig:
+    """The preset of the LiDAR a model's range image was made for (same name, rows and field of view), else
+    ``sensor`` itself. A model may sample the azimuth more coarsely than its LiDAR fires (the HDL-64E model's
+    64 x 1024 image of a 64 x 2048 scan); whatever simulates or labels that LiDAR's clouds needs the LiDAR's own."""
+    preset = SENSOR_PRESETS.get(sensor.name.lower())
+    if preset is not None and (preset.height, preset.fov_up_deg, preset.fov_down_deg) == (
+            sensor.height, sensor.fov_up_deg, sensor.fov_down_deg):
+        return preset
+    return sensor
+
+
 def estimate_fov(points: np.ndarray, percentile: float = 0.1, margin_deg: float = 0.1) -> tuple[float, float]:
     """Estimate (fov_up_deg, fov_down_deg) from the elevations of one scan.
 

@@ -172,6 +172,28 @@ def _usable_points(points: np.ndarray, intensity: np.ndarray | None) -> _Scan:
     return _Scan(xyz, remission, valid)
 
 
+def image_sensor(configured: SensorConfig | None, trained: SensorConfig) -> SensorConfig:
+    """The range image a pipeline projects to: the configured sensor's, or the model's where none is configured.
+
+    A model trained for the configured preset (same name, rows and field of view) at another number of columns
+    brings its own columns: the preset names the LiDAR, the model decides how finely its range image samples the
+    azimuth. Any other difference in the image's rows or columns raises :class:`ConfigError`.
+    """
+    if configured is None:
+        return trained
+    same_lidar = (configured.name, configured.height, configured.fov_up_deg, configured.fov_down_deg) == (
+        trained.name, trained.height, trained.fov_up_deg, trained.fov_down_deg)
+    if same_lidar and configured.width != trained.width:
+        return dataclasses.replace(configured, width=trained.width)
+    if (configured.height, configured.width) != (trained.height, trained.width):
+        raise ConfigError(
+            f"sensor {configured.name} projects to {configured.height} x {configured.width} but the model "
+            f"was trained for {trained.name} at {trained.height} x {trained.width}; "
+            "use a model trained for this sensor (models ship for " + ", ".join(shipped_models()) + ")"
+        )
+    return configured
+
+
 class MosPipeline:
     """Online MOS over a stream of scans from one sensor."""
 
@@ -185,13 +207,7 @@ class MosPipeline:
         self.model = model
         meta = self.model.metadata
         self.setup = meta.input
-        self.sensor: SensorConfig = config.sensor or meta.sensor
-        if (self.sensor.height, self.sensor.width) != (meta.sensor.height, meta.sensor.width):
-            raise ConfigError(
-                f"sensor {self.sensor.name} projects to {self.sensor.height} x {self.sensor.width} but the model "
-                f"was trained for {meta.sensor.name} at {meta.sensor.height} x {meta.sensor.width}; "
-                "use a model trained for this sensor (models ship for " + ", ".join(shipped_models()) + ")"
-            )
+        self.sensor: SensorConfig = image_sensor(config.sensor, meta.sensor)
         recommended = check_threshold(meta.extra.get("recommended_threshold", 0.5), f"{self.model.path.name}: "
                                       "recommended_threshold in the model's metadata")
         #: The moving-probability threshold in use: the configured one, or the model's own.
