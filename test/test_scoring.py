@@ -174,3 +174,32 @@ def test_model_metadata_with_zero_or_non_finite_stds_is_refused():
         with pytest.raises(ModelError):
             ModelMetadata.from_json(json.dumps(data))
     assert ModelMetadata.from_json(good).stds[2] > 0
+
+
+def test_calibrate_reports_the_iou_at_the_models_own_threshold_and_the_best(labelled_sequence, tiny_model_path):
+    """`ros2-mos calibrate`: the best threshold, and the IoU at the model's own as the pipeline labels it."""
+    import re
+
+    from typer.testing import CliRunner
+
+    from ros2_mos.cli import app
+    from ros2_mos.io.labels import to_moving_classes
+    from ros2_mos.scoring.metrics import MovingIoU
+
+    result = CliRunner().invoke(app, ["calibrate", str(labelled_sequence.root), "--model", str(tiny_model_path),
+                                      "--use-poses"])
+    assert result.exit_code == 0, result.output
+    found = re.search(r"best threshold ([\d.]+): moving IoU ([\d.]+) \(00; at the model's own ([\d.]+): ([\d.]+)\)",
+                      result.output)
+    assert found, result.output
+    best, best_iou, own, own_iou = (float(g) for g in found.groups())
+    # At the model's own threshold the pipeline labels exactly what the curve counts (at another one, state that
+    # depends on the labels, such as the memory of movers, evolves differently: the curve is an estimate there).
+    pipe = MosPipeline(MosConfig(model=str(tiny_model_path)))
+    assert own == pytest.approx(pipe.threshold)
+    score = MovingIoU()
+    for frame in labelled_sequence:
+        out = pipe.process(frame.points, frame.remission, frame.timestamp, pose=frame.pose)
+        score.update(out.labels, to_moving_classes(frame.labels))
+    assert own_iou == pytest.approx(100 * score.iou, abs=0.051)
+    assert best_iou > own_iou and best != own  # this model's best threshold is not its own

@@ -97,7 +97,8 @@ def calibrate(
         typer.echo(f"threshold {t:.2f}: moving IoU {100 * iou[int(round(t * 100))]:.1f}")
     best, best_iou = curve.best()
     typer.echo(f"best threshold {best:.2f}: moving IoU {100 * best_iou:.1f} "
-               f"({', '.join(s.name for s in seqs)}; model's own: {pipeline.threshold:.2f})")
+               f"({', '.join(s.name for s in seqs)}; at the model's own {pipeline.threshold:.2f}: "
+               f"{100 * iou[int(round(pipeline.threshold * 100))]:.1f})")
     if write:
         from ros2_mos.core.metadata import write_recommended_threshold
 
