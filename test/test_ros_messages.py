@@ -146,6 +146,19 @@ def test_stats_count_clouds_lost_on_the_way_and_restart_input_time():
     for t in (0.0, 0.1, 0.2, 0.3, 2.3, 2.4):  # a 2 s pause (the node resets after 1 s): not lost clouds
         paused.on_received(t)
     assert paused.snapshot().lost_in_transport == 0
+    # Clouds sent in lock-step (every 55 ms) before a pause, then the sensor's 10 Hz: the period is estimated
+    # afresh after the pause, so no 100 ms step is taken for a lost cloud (bench's warm-up once counted 45 of 45).
+    restarted = NodeStats(window=50, max_gap_s=1.0)
+    stamps = [i * 0.055 for i in range(5)] + [2.0 + i * 0.1 for i in range(45)]
+    for t in stamps:
+        restarted.on_received(t)
+    assert restarted.snapshot().lost_in_transport == 0
+    restarted.on_received(2.0 + 46 * 0.1)  # one cloud (45) lost after the pause: counted
+    assert restarted.snapshot().lost_in_transport == 1
+    never_resets = NodeStats(window=10, max_gap_s=0.0)  # reset_after_gap 0: a long step is lost clouds
+    for t in (0.0, 0.1, 0.2, 0.3, 2.3, 2.4):
+        never_resets.on_received(t)
+    assert never_resets.snapshot().lost_in_transport == 19
     s.on_received(10.0)  # time went back: a replay restarted; its input time adds up
     s.on_received(10.1)
     assert abs(s.snapshot().input_hz - 10 / 1.5) < 1e-6

@@ -88,7 +88,8 @@ class NodeStats:
         self._periods: deque[float] = deque(maxlen=window)
         self._closed_span = 0.0  # input time of stretches before time last went back
         self._lost_settled = 0
-        self._max_gap = max_gap_s  # a longer gap is a pause of the input (the node resets), not lost clouds
+        self._max_gap = max_gap_s  # a longer gap is a pause of the input (the node resets), not lost clouds; after
+        # it the sensor's period is estimated afresh (a replay's first clouds sent in lock-step must not set it)
 
     def on_received(self, stamp: float | None = None) -> None:
         """A cloud arrived; ``stamp`` (its header stamp, s) drives the input-time rates and the loss estimate."""
@@ -102,16 +103,25 @@ class NodeStats:
             if self._last_stamp is None or self._first_stamp is None:
                 self._first_stamp = self._last_stamp = stamp
             elif stamp > self._last_stamp:
-                if len(self._periods) == self._periods.maxlen:  # the oldest step leaves the window: settle it
-                    self._lost_settled += self._lost_in(self._periods[0], self._nominal_period())
-                self._periods.append(stamp - self._last_stamp)
+                step = stamp - self._last_stamp
+                if self._is_pause(step):  # the input starts anew, perhaps at another rate: settle what came before
+                    period = self._nominal_period()
+                    self._lost_settled += sum(self._lost_in(s, period) for s in self._periods)
+                    self._periods.clear()
+                else:
+                    if len(self._periods) == self._periods.maxlen:  # the oldest step leaves the window: settle it
+                        self._lost_settled += self._lost_in(self._periods[0], self._nominal_period())
+                    self._periods.append(step)
                 self._last_stamp = stamp
             elif stamp < self._first_stamp:  # time went back (a replay restarted): a new stretch of input time
                 self._closed_span += self._input_span()
                 self._first_stamp = self._last_stamp = stamp
 
+    def _is_pause(self, step: float) -> bool:
+        return 0 < self._max_gap < step  # max_gap 0: the node never resets, so no step is a pause
+
     def _lost_in(self, step: float, period: float | None) -> int:
-        if not period or step <= 1.5 * period or step > self._max_gap:
+        if not period or step <= 1.5 * period or self._is_pause(step):
             return 0
         return max(0, round(step / period) - 1)
 
