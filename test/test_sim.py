@@ -355,3 +355,28 @@ def test_bad_arguments_raise_typed_errors(tmp_path: Path) -> None:
         SequenceSimulator(1, "rush_hour")
     with pytest.raises(ConfigError):
         simulate_sequence(tmp_path, "00", 1, preset="easy", sensor="hdl65")
+
+
+def test_narrow_streets_are_drawn_after_everything_else_and_bring_parked_cars_closer() -> None:
+    from ros2_mos.sim.presets import (
+        NARROW_BIKE_LANE_WIDTH,
+        NARROW_LANE_WIDTH,
+        NARROW_PARKING_WIDTH,
+        randomized_for_sequence,
+    )
+
+    base = sim_preset("benchmark")
+    wide = randomized_for_sequence(base, 100, "b00")
+    narrow = randomized_for_sequence(base, 100, "b00", narrow_street=True)
+    # The other draws are the same, so every earlier recipe's data is unchanged by the option.
+    assert narrow.effects == wide.effects and narrow.ego == wide.ego and wide.street == base.street
+    st = narrow.street
+    assert NARROW_LANE_WIDTH[0] <= st.lane_width <= NARROW_LANE_WIDTH[1]
+    assert NARROW_BIKE_LANE_WIDTH[0] <= st.bike_lane_width <= NARROW_BIKE_LANE_WIDTH[1]
+    assert NARROW_PARKING_WIDTH[0] <= st.parking_width <= NARROW_PARKING_WIDTH[1]
+    # The sensor drives in the middle of lane 0; the parking lane's inner edge, by hand: preset 3.5 / 2 + 1.5 = 3.25 m
+    # away, never more on a narrow street (at most 3.5 / 2 + 1.5), at least 2.8 / 2 + 0.3 = 1.7 m.
+    inner_edge = lambda s: (s.half_road_width - s.parking_width) + s.lane_offset(0)  # noqa: E731
+    assert inner_edge(base.street) == pytest.approx(-1.75 + 3.5 + 1.5)
+    edges = [inner_edge(randomized_for_sequence(base, 100, f"b{i:02d}", narrow_street=True).street) for i in range(20)]
+    assert all(1.7 <= e <= 3.25 for e in edges) and min(edges) < 2.5

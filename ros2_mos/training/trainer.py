@@ -116,11 +116,15 @@ class TrainConfig:
     # epoch 0). Ignored once out_dir/last.pt exists (the run then resumes as usual).
     init_from: str | None = None
     # Read by tools/train_models.py when it simulates the sequences (ros2_mos.sim.presets.randomized:
-    # large, lumpy trees; beams off the nominal grid); not by training.
+    # large, lumpy trees; beams off the nominal grid; the sequences named here on narrow streets); not by training.
     sim_large_trees: bool = False
     sim_beam_layout: bool = True
+    sim_narrow_streets: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.sim_narrow_streets, list) or not all(
+                isinstance(n, str) for n in self.sim_narrow_streets):
+            raise ConfigError(f"sim_narrow_streets must be a list of sequence names, got {self.sim_narrow_streets!r}")
         if self.optimizer not in ("sgd", "adamw"):
             raise ConfigError(f"optimizer must be 'sgd' or 'adamw', got {self.optimizer!r}")
         if self.epochs < 1 or self.batch_size < 1:
