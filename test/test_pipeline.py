@@ -200,6 +200,16 @@ def test_static_map_update_keeps_tracking(tiny_model_path):
     np.testing.assert_allclose(poses[-1][:3, 3] - poses[0][:3, 3], [5.0, 0, 0], atol=0.15)
 
 
+def test_deskew_without_point_times_is_said_once_not_ignored_silently(tiny_model_path):
+    seq = street_sequence(3)
+    on = MosPipeline(MosConfig(model=str(tiny_model_path), odometry=OdometryConfig(deskew=True)))
+    off = MosPipeline(MosConfig(model=str(tiny_model_path)))
+    said = [[w for w in pipe.process(p, r, 0.1 * i).warnings if "deskew" in w]
+            for pipe in (on, off) for i, (p, r, _, _) in enumerate(seq)]
+    assert [len(w) for w in said] == [1, 0, 0, 0, 0, 0]
+    assert "not deskewed" in said[0][0]
+
+
 def test_non_finite_odometry_pose_resets_and_flags_degraded(pipeline):
     """A diverged ICP (NaN pose) must not reach the outputs or the buffer: reset, restart, degraded."""
     seq = street_sequence(5)

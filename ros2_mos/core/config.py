@@ -321,7 +321,8 @@ class OdometryConfig:
     # KISS-ICP voxelises at 0.5 m and registers ~2.5k points anyway (benchmarks/bench.md).
     point_stride: int = knob(2, "KISS-ICP registers every k-th point of the scan (1 = all; MOS still labels "
                                 "every point)", min=1, max=16)
-    deskew: bool = knob(False, "KISS-ICP constant-velocity deskewing")
+    deskew: bool = knob(False, "KISS-ICP constant-velocity deskewing; needs per-point times, which are not passed "
+                               "yet: no effect (the first scan's warning says so)")
     # ~30 ICP iterations per scan at KISS-ICP's 1e-4; 1e-3 stops sooner (benchmarks/experiments.md, round 6).
     convergence_criterion: float = knob(1e-3, "KISS-ICP: the ICP stops when a step is smaller than this (m and rad; "
                                               "KISS-ICP's own default is 1e-4)", min=0.0, above=True, max=0.01)
