@@ -12,7 +12,8 @@ setup(
     packages=find_packages(exclude=["test", "test.*"]),
     # The shipped model and default config travel inside the package too, so that
     # `pip install .` and `pip install -e .` find them through importlib.resources.
-    package_data={PACKAGE: ["models/*.onnx", "models/adapted/*.onnx", "models/*.json", "data/*.yaml", "data/*.xml"]},
+    package_data={PACKAGE: ["models/*.onnx", "models/adapted/*.onnx", "models/alternatives/*.onnx", "models/*.json",
+                            "data/*.yaml", "data/*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -20,6 +21,7 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob(f"{PACKAGE}/data/*.xml")),
         (f"share/{PACKAGE}/models", glob(f"{PACKAGE}/models/*.onnx")),
         (f"share/{PACKAGE}/models/adapted", glob(f"{PACKAGE}/models/adapted/*.onnx")),
+        (f"share/{PACKAGE}/models/alternatives", glob(f"{PACKAGE}/models/alternatives/*.onnx")),
     ],
     # The runtime (node, infer, eval, process, replay) needs no torch. rclpy and the message
     # packages come from a ROS 2 Jazzy install or the ros-jazzy-* PyPI wheels (requirements.txt).
