@@ -54,6 +54,9 @@ def test_threshold_curve_counts_by_hand():
     assert iou[20] == pytest.approx(20 / (20 + 10))
     # best: just above the 0.55 static bin, below the 0.60 moving one (the first such threshold)
     assert curve.best() == (pytest.approx(0.56), pytest.approx(15 / 22))
+    # at a threshold: the nearest bin edge; above the last edge (0.99), the last
+    assert curve.iou_at(0.5) == curve.iou_at(0.504) == pytest.approx(15 / 30)
+    assert curve.iou_at(0.996) == pytest.approx(0.0)  # >= 0.99: no point, tp 0
 
 
 @pytest.fixture(scope="module")

@@ -92,13 +92,12 @@ def calibrate(
     with tqdm(total=sum(len(s) for s in seqs), desc="calibrate", unit="scan", leave=False) as bar:
         curve = threshold_curve(pipeline, seqs, use_poses, progress=bar.update)
     pipeline.close()
-    iou = curve.iou()
     for t in (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9):
-        typer.echo(f"threshold {t:.2f}: moving IoU {100 * iou[int(round(t * 100))]:.1f}")
+        typer.echo(f"threshold {t:.2f}: moving IoU {100 * curve.iou_at(t):.1f}")
     best, best_iou = curve.best()
     typer.echo(f"best threshold {best:.2f}: moving IoU {100 * best_iou:.1f} "
                f"({', '.join(s.name for s in seqs)}; at the model's own {pipeline.threshold:.2f}: "
-               f"{100 * iou[int(round(pipeline.threshold * 100))]:.1f})")
+               f"{100 * curve.iou_at(pipeline.threshold):.1f})")
     if write:
         from ros2_mos.core.metadata import write_recommended_threshold
 

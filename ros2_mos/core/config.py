@@ -187,15 +187,17 @@ def sensor_preset(name: str) -> SensorConfig:
         raise ConfigError(f"unknown sensor preset {name!r}; known presets: {', '.join(SENSOR_PRESETS)}") from None
 
 
+def same_beams(a: SensorConfig, b: SensorConfig) -> bool:
+    """Whether two range images have the same rows and vertical field of view, whatever their columns."""
+    return (a.height, a.fov_up_deg, a.fov_down_deg) == (b.height, b.fov_up_deg, b.fov_down_deg)
+
+
 def lidar_of(sensor: SensorConfig) -> SensorConfig:
-    """The preset of the LiDAR a model's range image was made for (same name, rows and field of view), else
-    ``sensor`` itself. A model may sample the azimuth more coarsely than its LiDAR fires (the HDL-64E model's
-    64 x 1024 image of a 64 x 2048 scan); whatever simulates or labels that LiDAR's clouds needs the LiDAR's own."""
+    """The preset of the LiDAR a model's range image was made for (its name, :func:`same_beams`), else ``sensor``
+    itself. A model may sample the azimuth more coarsely than its LiDAR fires (the HDL-64E model's 64 x 1024 image of
+    a 64 x 2048 scan); whatever simulates or labels that LiDAR's clouds needs the LiDAR's own."""
     preset = SENSOR_PRESETS.get(sensor.name.lower())
-    if preset is not None and (preset.height, preset.fov_up_deg, preset.fov_down_deg) == (
-            sensor.height, sensor.fov_up_deg, sensor.fov_down_deg):
-        return preset
-    return sensor
+    return preset if preset is not None and same_beams(preset, sensor) else sensor
 
 
 def estimate_fov(points: np.ndarray, percentile: float = 0.1, margin_deg: float = 0.1) -> tuple[float, float]:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ros2_mos.core.config import MosConfig, PostprocessConfig, ResidualConfig, SensorConfig
+from ros2_mos.core.config import MosConfig, PostprocessConfig, ResidualConfig, SensorConfig, same_beams
 from ros2_mos.core.errors import ConfigError, ImplausibleScanError, ScanError
 from ros2_mos.core.inference import MosModel, default_model_path, shipped_models
 from ros2_mos.core.memory import retain_freed_memory
@@ -181,8 +181,7 @@ def image_sensor(configured: SensorConfig | None, trained: SensorConfig) -> Sens
     """
     if configured is None:
         return trained
-    same_lidar = (configured.name, configured.height, configured.fov_up_deg, configured.fov_down_deg) == (
-        trained.name, trained.height, trained.fov_up_deg, trained.fov_down_deg)
+    same_lidar = configured.name == trained.name and same_beams(configured, trained)
     if same_lidar and configured.width != trained.width:
         return dataclasses.replace(configured, width=trained.width)
     if (configured.height, configured.width) != (trained.height, trained.width):

@@ -45,6 +45,10 @@ class ThresholdCurve:
         tp, fp, fn = self.counts()
         return tp / np.maximum(tp + fp + fn, 1)
 
+    def iou_at(self, threshold: float) -> float:
+        """IoU at the bin edge nearest ``threshold`` (a threshold in (0, 1); above the last edge, the last)."""
+        return float(self.iou()[min(int(round(threshold * BINS)), BINS - 1)])
+
     def best(self, low: float = 0.05, high: float = 0.95) -> tuple[float, float]:
         """(threshold, IoU) of the best IoU with the threshold in [low, high]."""
         t, iou = self.thresholds, self.iou()
