@@ -21,7 +21,7 @@ from ros2_mos.core.pipeline import MosPipeline  # noqa: E402
 from ros2_mos.io.labels import to_moving_classes  # noqa: E402
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence  # noqa: E402
 from ros2_mos.offline.drives import FolderDrive  # noqa: E402
-from ros2_mos.training.adapt import AdaptConfig, adapt, plan_adaptation  # noqa: E402
+from ros2_mos.training.adapt import AdaptConfig, adapt, narrow_street_drives, plan_adaptation  # noqa: E402
 from ros2_mos.training.trainer import TrainConfig, Trainer, export_checkpoint  # noqa: E402
 
 runner = CliRunner()
@@ -122,3 +122,17 @@ def test_adapt_refuses_too_few_scans_another_sensor_s_base_and_mixed_sensors(bas
     result = runner.invoke(app, ["adapt", str(tmp_path / "sequences" / "few"), "--out", str(tmp_path / "x.onnx"),
                                  "--holdout", "nan"])
     assert result.exit_code != 0 and "--holdout" in result.output
+
+
+def test_simulated_drives_lie_on_narrow_streets_in_the_share_the_base_recipe_trained_on():
+    def recipe(train, narrow):
+        return TrainConfig.from_dict(dict(train_sequences=train, valid_sequences=["v"], sim_narrow_streets=narrow))
+
+    # None narrow: none; 3 of 7 trained on (0.43; "v" and "x" are not trained on): drives 2 and 4 of 6 (floor of
+    # 1.29 and 2.14 step up); half: every other drive, the second first; all: all.
+    assert narrow_street_drives(recipe(["a", "b"], []), 4) == [False] * 4
+    seven = ["a", "b", "c", "d", "e", "f", "g"]
+    assert narrow_street_drives(recipe(seven, ["a", "b", "c", "v", "x"]), 6) == [False, False, True, False, True,
+                                                                                  False]
+    assert narrow_street_drives(recipe(["a", "b"], ["b"]), 4) == [False, True, False, True]
+    assert narrow_street_drives(recipe(["a", "b"], ["a", "b"]), 3) == [True, True, True]

@@ -24,13 +24,16 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ConfigError, DatasetError, ModelError
 from ros2_mos.io.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times
+
+if TYPE_CHECKING:
+    from ros2_mos.training.trainer import TrainConfig
 
 #: Fewer real scans than this are too few to adapt on.
 MIN_REAL_SCANS = 30
@@ -251,19 +254,31 @@ def prepare_real(drive, sensor: SensorConfig, work: Path, plan: DrivePlan,
     return names
 
 
-def prepare_simulated(sensor: SensorConfig, work: Path, config: AdaptConfig,
+def narrow_street_drives(recipe: TrainConfig, count: int) -> list[bool]:
+    """Which of ``count`` simulated drives lie on narrow streets: the share of the base recipe's training drives
+    that did (``sim_narrow_streets``), spread evenly (drive i is narrow when ``floor((i + 1) * share)`` steps up)."""
+    train = set(recipe.train_sequences)
+    share = len(train & set(recipe.sim_narrow_streets)) / len(train) if train else 0.0
+    return [int((i + 1) * share) > int(i * share) for i in range(count)]
+
+
+def prepare_simulated(sensor: SensorConfig, work: Path, config: AdaptConfig, recipe: TrainConfig,
                       progress: Callable[[str, int], None]) -> tuple[list[str], list[str]]:
-    """Simulated drives of the same sensor (instant labels, randomised sensor effects), written once: (to train on,
+    """Simulated drives of the same sensor (instant labels, randomised sensor effects), drawn as the base's recipe
+    drew its training drives (large trees, beam layout, the share on narrow streets), written once: (to train on,
     held out)."""
     from ros2_mos.sim import sim_preset, simulate_sequence
     from ros2_mos.sim.presets import randomized_for_sequence
 
     presets = ("benchmark", "traffic_jam", "easy")
     names = [f"sim{i:02d}" for i in range(config.sim_drives)] + [f"simv{i}" for i in range(config.sim_holdout)]
+    narrow = narrow_street_drives(recipe, len(names))
     for i, name in enumerate(names):
         if (work / "data" / "sequences" / name / "poses.txt").is_file():
             continue
-        preset = randomized_for_sequence(sim_preset(presets[i % len(presets)]), config.sim_seed, name)
+        preset = randomized_for_sequence(sim_preset(presets[i % len(presets)]), config.sim_seed, name,
+                                         large_trees=recipe.sim_large_trees, beam_layout=recipe.sim_beam_layout,
+                                         narrow_street=narrow[i])
         simulate_sequence(work / "data", name, config.sim_scans, preset, config.sim_seed + i, sensor,
                           progress=lambda n: progress("simulate", n), convention="instant")
     return names[: config.sim_drives], names[config.sim_drives:]
@@ -298,9 +313,9 @@ def adapt(drives: list, out: Path, plan: AdaptPlan, work: Path,
         a, b = prepare_real(drive, plan.sensor, work, drive_plan, progress)
         train.append(a)
         holdout.append(b)
-    sim, sim_holdout = prepare_simulated(plan.sensor, work, cfg, progress)
-    holdout += sim_holdout
     recipe = TrainConfig.from_yaml(plan.base_config)
+    sim, sim_holdout = prepare_simulated(plan.sensor, work, cfg, recipe, progress)
+    holdout += sim_holdout
     train_config = dataclasses.replace(
         recipe, name=f"{recipe.name}-adapted", train_sequences=train + sim, valid_sequences=holdout,
         poses="dataset", cache_dir=str(work / "cache"), out_dir=str(work / "run"), init_from=str(plan.base_checkpoint),
