@@ -10,7 +10,7 @@ when each labelled cloud arrives. 5 warm-up clouds go first at 2 Hz, then a paus
 they are not counted, and the timed clouds continue the bag after them. ``--busy K`` keeps K more processes
 spinning on the CPU during the runs (another program on the robot). Prints one Markdown row per run: clouds
 published, labels the subscriber got (and which clouds got none), latency stamp ->
-/mos/labels, what the node's /diagnostics said (dropped, capacity, mean ms of the main stages), and the CPU time
+/mos/labels, what the node's /diagnostics said (dropped, capacity, mean and median ms of the main stages), and the CPU time
 each of the three processes spent per published cloud while the clouds were sent (from /proc). ``--ab``
 alternates the runs between the node's settings (A) and these changed (B): a same-run A/B.
 """
@@ -142,8 +142,8 @@ def main() -> None:
                 rclpy.try_shutdown()
             lat = np.array(r["latency"]) if r["latency"] else np.zeros(1)
             d = r["diag"]
-            stages = ", ".join(f"{k} {float(d[f'{k}_ms_mean']):.0f}" for k in ("odometry", "residuals", "inference",
-                                                                             "total") if f"{k}_ms_mean" in d)
+            stages = ", ".join(f"{k} {float(d[f'{k}_ms_mean']):.0f} / {float(d.get(f'{k}_ms_median', 'nan')):.0f}"
+                               for k in ("odometry", "residuals", "inference", "total") if f"{k}_ms_mean" in d)
             tag = " B" if b else (" A" if args.ab else "")
             share = 100 * r["labels"] / max(r["sent"], 1)
             missed = (f" (missed: {', '.join(map(str, r['missed'][:8]))}{' ...' if len(r['missed']) > 8 else ''})"
@@ -161,7 +161,7 @@ def main() -> None:
           f"{args.node_param or 'defaults'}{f'; B runs also {args.ab}' if args.ab else ''}; {os.cpu_count()} cores, "
           f"load average {os.getloadavg()[0]:.1f}")
     print("| run | published | labels at the subscriber | latency stamp -> /mos/labels median / p95 (ms) | "
-          "node dropped (incl. warm-up) | node capacity (Hz) | node mean ms | CPU ms per cloud: driver / node / "
+          "node dropped (incl. warm-up) | node capacity (Hz) | node ms, mean / median | CPU ms per cloud: driver / node / "
           "subscriber |")
     print("|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))

@@ -25,6 +25,7 @@ def test_no_input_then_ok_then_stale_then_a_streak_of_errors():
     level, message, values = node_status(stats.snapshot(), None)
     assert (level, message) == (m.OK, "ok")
     assert values["received"] == 1 and values["processed"] == 1 and values["inference_ms_mean"] == 20.0
+    assert values["inference_ms_median"] == 20.0
     clock.now += STALE_AFTER_S + 0.5
     level, message, _ = node_status(stats.snapshot(), None)
     assert (level, message) == (m.WARN, f"no input for {STALE_AFTER_S + 0.5:.1f} s")

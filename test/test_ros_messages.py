@@ -122,6 +122,7 @@ def test_stats_snapshot_and_summary():
     assert abs(snap.rate_hz - 10.0) < 1e-6 and abs(snap.input_hz - 10.0) < 1e-6
     assert abs(snap.capacity_hz - 1000.0 / 52.0) < 1e-6  # mean total 52 ms
     assert snap.stage_ms["total"] == (52.0, 54.0)
+    assert snap.stage_median_ms == {"total": 52.0, "decode": 1.0}
     line = summary_line(snap)
     assert "5/5 scans processed (10.0 per s of input time, input 10.0 Hz, node capacity 19.2 Hz)" in line
     assert "lost: 1 in the node's queue, ~0 on the way in" in line

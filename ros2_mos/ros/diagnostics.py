@@ -52,6 +52,7 @@ def node_status(s: Snapshot, last: ScanOutput | None, stream_problem: str = "") 
         "errors": s.errors, "resets": s.resets, "degraded_scans": s.degraded,
         "latency_ms_mean": s.latency_ms[0], "latency_ms_max": s.latency_ms[1],
         **{f"{stage}_ms_mean": v[0] for stage, v in s.stage_ms.items()},
+        **{f"{stage}_ms_median": v for stage, v in s.stage_median_ms.items()},
         **{f"{stage}_ms_max": v[1] for stage, v in s.stage_ms.items()},
         "last_warning": s.last_warning,
     }

@@ -21,6 +21,7 @@ the recent steps, so regular losses do not hide themselves).
 from __future__ import annotations
 
 import math
+import statistics
 import threading
 import time
 from collections import Counter, deque
@@ -49,6 +50,8 @@ class Snapshot:
     consecutive_errors: int
     seconds_since_last_scan: float | None
     extra: dict[str, str] = field(default_factory=dict)
+    #: stage -> median ms over the window (comparable with ``ros2-mos bench``'s medians).
+    stage_median_ms: dict[str, float] = field(default_factory=dict)
     #: Clouds dropped from the node's queue / received within the last ``recent_s`` seconds (wall clock): the node
     #: is overloaded *now* when some were dropped (it then labels the newest scan and lets the older ones go).
     dropped_recent: int = 0
@@ -184,12 +187,14 @@ class NodeStats:
             total = self._stages.get("total")
             capacity = 1000.0 * len(total) / sum(total) if total and sum(total) > 0 else 0.0
             stages = {k: (sum(v) / len(v), max(v)) for k, v in self._stages.items() if v}
+            medians = {k: float(statistics.median(v)) for k, v in self._stages.items() if v}
             lat = (sum(self._latency) / len(self._latency), max(self._latency)) if self._latency else (0.0, 0.0)
             return Snapshot(
                 received=self.received, processed=self.processed, dropped=self.dropped,
                 skipped=dict(self.skipped), errors=self.errors, resets=self.resets, degraded=self.degraded,
                 rate_hz=self.processed / span if span else 0.0, input_hz=self.received / span if span else 0.0,
                 capacity_hz=capacity, lost_in_transport=self.lost_in_transport, stage_ms=stages, latency_ms=lat,
+                stage_median_ms=medians,
                 last_warning=self.last_warning,
                 consecutive_errors=self.consecutive_errors,
                 seconds_since_last_scan=None if self._last_received is None else now - self._last_received,
