@@ -10,8 +10,8 @@ when each labelled cloud arrives. 5 warm-up clouds go first at 2 Hz, then a paus
 they are not counted, and the timed clouds continue the bag after them. ``--busy K`` keeps K more processes
 spinning on the CPU during the runs (another program on the robot). Prints one Markdown row per run: clouds
 published, labels the subscriber got (and which clouds got none), latency stamp ->
-/mos/labels, what the node's /diagnostics said (dropped, capacity, mean and median ms of the main stages), and the CPU time
-each of the three processes spent per published cloud while the clouds were sent (from /proc). ``--ab``
+/mos/labels, what the node's /diagnostics said (dropped, capacity, mean and median ms of the main stages), and the
+CPU time each of the three processes spent per published cloud while the clouds were sent (from /proc). ``--ab``
 alternates the runs between the node's settings (A) and these changed (B): a same-run A/B.
 """
 
@@ -161,8 +161,8 @@ def main() -> None:
           f"{args.node_param or 'defaults'}{f'; B runs also {args.ab}' if args.ab else ''}; {os.cpu_count()} cores, "
           f"load average {os.getloadavg()[0]:.1f}")
     print("| run | published | labels at the subscriber | latency stamp -> /mos/labels median / p95 (ms) | "
-          "node dropped (incl. warm-up) | node capacity (Hz) | node ms, mean / median | CPU ms per cloud: driver / node / "
-          "subscriber |")
+          "node dropped (incl. warm-up) | node capacity (Hz) | node ms, mean / median | CPU ms per cloud: driver / "
+          "node / subscriber |")
     print("|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))
 
