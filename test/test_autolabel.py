@@ -58,6 +58,25 @@ def test_local_ground_is_the_lowest_point_nearby():
     assert ground.tolist() == pytest.approx([0.0, 0.0, 0.3, 0.3])  # cells 0 and 5 are 5 apart: separate
 
 
+def test_local_ground_leaves_out_spurious_returns_under_the_road():
+    # A flat road at z -1.7 over 7 x 7 one-metre cells, nine spurious returns 4.5 m under it in cell (3, 3) (as on the
+    # real 08a under the car ahead), a car body 1 m above the road in cell (4, 3).
+    xs, ys = np.meshgrid(np.arange(7) + 0.5, np.arange(7) + 0.5)
+    road = np.column_stack([xs.ravel(), ys.ravel(), np.full(49, -1.7)])
+    spurious = np.column_stack([np.full(9, 3.5), np.linspace(3.1, 3.9, 9), np.full(9, -6.2)])
+    body = np.array([[4.5, 3.5, -0.7]])
+    pts = np.vstack([road, spurious, body]).astype(np.float32)
+    plain = local_ground(pts, cell=1.0, radius=2)
+    assert plain[-1] == pytest.approx(-6.2)  # the car body would stand 5.5 m above "the ground"
+    robust = local_ground(pts, cell=1.0, radius=2, outlier_drop=1.5)
+    # The neighbourhood's median lowest point is the road (-1.7); the returns 4.5 m under it are left out.
+    assert robust.tolist() == pytest.approx([-1.7] * len(pts))
+    # A step down of 1 m (a kerb, a slope) is not an outlier: the lower side stays the ground beside it.
+    pts[:21, 2] = -2.7  # cells with y < 3
+    step = local_ground(pts[:49], cell=1.0, radius=2, outlier_drop=1.5)
+    assert step[21:28].tolist() == pytest.approx([-2.7] * 7)  # y 3-4, within two cells of the lower side
+
+
 def test_voxel_clusters_link_26_neighbours_and_split_at_a_free_voxel():
     a = np.array([[0.1, 0.1, 0.1], [0.5, 0.5, 0.5], [0.9, 0.1, 0.9]])  # diagonal neighbours of 0.4 m voxels
     b = np.array([[2.1, 0.1, 0.1], [2.5, 0.1, 0.1]])  # one free voxel (x 1.2-1.6... 2.0) away

@@ -1,7 +1,8 @@
 """One scan's object candidates: ground removed from a local height grid, the rest cut into connected voxel clusters.
 
 The ground under each point is the lowest point within ``ground_radius`` cells of a ``ground_cell``-metre grid, so
-that slopes and curbs stay ground and a car's body does not; points more than ``ground_height`` above it are
+that slopes and curbs stay ground and a car's body does not (points ``ground_outlier`` below the lower quartile of
+their neighbourhood's lowest points are spurious and left out); points more than ``ground_height`` above it are
 candidates. Candidates are grouped into clusters of 26-connected occupied voxels (``voxel`` metres): a car close to
 the sensor stays one cluster (in a range image its roof and sides break into bands at grazing angles), two cars
 queueing a metre apart stay two, and a canopy above a car is a cluster of its own when there is a free voxel
@@ -43,6 +44,10 @@ class ObjectConfig:
     ground_cell: float = 1.0  # m
     ground_radius: int = 2  # cells
     ground_height: float = 0.3  # m above the local ground (kerbs and sidewalk edges stay below it)
+    #: m: a point this far below the lower quartile of its neighbourhood's lowest points is not ground (the real 08a has
+    #: returns 4-5 m under the road beneath the car ahead; taken as ground they lifted the road around them 5 m off
+    #: it, into the car's object)
+    ground_outlier: float = 1.5
     max_range: float = 60.0  # m: farther points are too sparse to cut into objects
     #: The vehicle that carries the sensor (:class:`VehicleReturns`) is looked for this close to the sensor, seen
     #: from above (m; 0 = not at all): KITTI's HDL-64E sees parts of its own car 1.4-1.9 m away in every scan. Not
@@ -84,19 +89,38 @@ class ScanObjects:
         return len(self.counts)
 
 
-def local_ground(points: np.ndarray, cell: float, radius: int) -> np.ndarray:
-    """Per point the height of the lowest point within ``radius`` cells of its grid cell."""
+def _cell_lowest(ij: np.ndarray, z: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    lowest = np.full(shape, np.inf, np.float32)
+    np.minimum.at(lowest, (ij[:, 0], ij[:, 1]), z)
+    return lowest
+
+
+def _windows(grid: np.ndarray, radius: int) -> np.ndarray:
+    """(window cells, *grid.shape): each cell's (2 radius + 1)^2 neighbourhood, inf outside the grid."""
+    padded = np.full((grid.shape[0] + 2 * radius, grid.shape[1] + 2 * radius), np.inf, np.float32)
+    padded[radius: radius + grid.shape[0], radius: radius + grid.shape[1]] = grid
+    return np.stack([padded[di: di + grid.shape[0], dj: dj + grid.shape[1]]
+                     for di in range(2 * radius + 1) for dj in range(2 * radius + 1)])
+
+
+def local_ground(points: np.ndarray, cell: float, radius: int, outlier_drop: float = np.inf) -> np.ndarray:
+    """Per point the height of the lowest point within ``radius`` cells of its grid cell, leaving out points more
+    than ``outlier_drop`` below the lower quartile of the neighbourhood's cells' lowest points (spurious returns
+    under the road, which would lift everything around them off the ground; the quartile, not the median, so that
+    ground under trees, whose neighbours' lowest points may be canopy, stays ground)."""
     ij = np.floor(points[:, :2] / cell).astype(np.int64)
     ij -= ij.min(axis=0)
-    shape = tuple(int(v) + 1 for v in ij.max(axis=0))
-    lowest = np.full(shape, np.inf, np.float32)
-    np.minimum.at(lowest, (ij[:, 0], ij[:, 1]), points[:, 2].astype(np.float32))
-    padded = np.full((shape[0] + 2 * radius, shape[1] + 2 * radius), np.inf, np.float32)
-    padded[radius: radius + shape[0], radius: radius + shape[1]] = lowest
-    ground = lowest.copy()
-    for di in range(2 * radius + 1):
-        for dj in range(2 * radius + 1):
-            np.minimum(ground, padded[di: di + shape[0], dj: dj + shape[1]], out=ground)
+    shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1)
+    z = points[:, 2].astype(np.float32)
+    lowest = _cell_lowest(ij, z, shape)
+    if np.isfinite(outlier_drop):
+        windows = np.sort(_windows(lowest, radius), axis=0)  # empty cells (inf) last
+        filled = np.isfinite(windows).sum(axis=0)
+        quartile = np.take_along_axis(windows, np.maximum(filled - 1, 0)[None] // 4, axis=0)[0]
+        kept = z >= quartile[ij[:, 0], ij[:, 1]] - outlier_drop
+        if not kept.all():
+            lowest = _cell_lowest(ij[kept], z[kept], shape)
+    ground = _windows(lowest, radius).min(axis=0)
     return ground[ij[:, 0], ij[:, 1]]
 
 
@@ -209,7 +233,8 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
     """Ground, clusters and object-sized clusters of one scan (sensor frame, finite points); points in ``vehicle``'s
     cells (:meth:`VehicleReturns.cells`) are on no object."""
     n = len(points)
-    height = (points[:, 2] - local_ground(points, config.ground_cell, config.ground_radius)).astype(np.float32)
+    ground = local_ground(points, config.ground_cell, config.ground_radius, config.ground_outlier)
+    height = (points[:, 2] - ground).astype(np.float32)
     horizontal = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
     free = ~on_vehicle(points, vehicle, config) if vehicle is not None else True
     candidate = np.flatnonzero((height > config.ground_height) & free
