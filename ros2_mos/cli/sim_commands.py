@@ -16,7 +16,8 @@ def simulate(
     sequences: list[str] = typer.Option(["00"], "--sequences", "-s",
                                         help="Sequence names: --sequences 00 01 02 (or repeated, or '00,01')"),
     scans: int = typer.Option(100, "--scans", "-n", min=1, help="Scans per sequence (10 Hz)"),
-    preset: str = typer.Option("benchmark", help="Simulation preset: easy, benchmark, traffic_jam, slow_traffic"),
+    preset: str = typer.Option("benchmark", help="Simulation preset: easy, benchmark, traffic_jam, narrow_street, "
+                                                 "slow_traffic"),
     seed: int = typer.Option(0, min=0, help="Random seed; the same seed gives the same sequences"),
     sensor: str = typer.Option("hdl64", help="Sensor preset: hdl64, vlp16, vlp32c, os1-64, os1-128"),
     intra_sweep_motion: bool = typer.Option(False, "--intra-sweep-motion/--no-intra-sweep-motion",

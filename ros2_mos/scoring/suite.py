@@ -2,7 +2,7 @@
 
 Rows
 ----
-* **Simulated, held out**: the presets easy, benchmark and traffic_jam, each with the
+* **Simulated, held out**: the presets easy, benchmark, traffic_jam and narrow_street, each with the
   seeds in :data:`SIM_SEEDS` (slow_traffic is a training preset, not scored here); no
   training recipe of this project uses them (training data is simulated with seed 100,
   the demo with its own).  The sequences are
@@ -53,6 +53,7 @@ SIM_SEEDS: dict[str, tuple[int, ...]] = {
     "easy": (9301, 9302),
     "benchmark": (9101, 9102),
     "traffic_jam": (9201, 9202),
+    "narrow_street": (9501, 9502),
 }
 #: Residual baseline threshold, tuned on the simulator's validation sequence (benchmarks/ablation.md).
 RESIDUAL_TAU = 0.05

@@ -295,6 +295,14 @@ SIM_PRESETS: dict[str, SimPreset] = {
             side_column=True, side_column_speed=(3.0, 7.0), heavy_vehicle_prob=0.3,
         ),
     ),
+    # A narrow street lined with parked cars, as the real KITTI drive r2 (benchmarks/experiments.md, row 40): lanes,
+    # bike lane and parking lane narrower than the presets' (3.5, 1.5, 2.3 m), so the sensor passes parked cars'
+    # sides about 2.2 m away instead of 3.4-3.6 m. The benchmark preset's traffic otherwise.
+    "narrow_street": SimPreset(
+        "narrow_street",
+        street=StreetConfig(lane_width=3.0, bike_lane_width=0.5, parking_width=2.1),
+        scene=SceneConfig(parked_prob=0.8),
+    ),
     # Slow movers 20-50 m away, the ones the held-out benchmark drives miss most (benchmarks/experiments.md,
     # row 24): people walking away along the sidewalks, cars creeping off from junctions and lights, a lead car
     # far ahead, seen by an ego vehicle that often stands or drives slowly. A training preset, not a suite one.
