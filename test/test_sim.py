@@ -380,3 +380,13 @@ def test_narrow_streets_are_drawn_after_everything_else_and_bring_parked_cars_cl
     assert inner_edge(base.street) == pytest.approx(-1.75 + 3.5 + 1.5)
     edges = [inner_edge(randomized_for_sequence(base, 100, f"b{i:02d}", narrow_street=True).street) for i in range(20)]
     assert all(1.7 <= e <= 3.25 for e in edges) and min(edges) < 2.5
+
+
+def test_the_narrow_street_preset_is_the_benchmark_street_narrowed_and_lined_with_more_parked_cars() -> None:
+    narrow, bench = sim_preset("narrow_street"), sim_preset("benchmark")
+    assert narrow.traffic == bench.traffic and narrow.ego == bench.ego and narrow.effects == bench.effects
+    assert narrow.scene.parked_prob == 0.8 > bench.scene.parked_prob
+    # The parking lane's inner edge seen from the middle of the sensor's lane, by hand: 3.0 / 2 + 0.5 = 2.0 m (the
+    # benchmark's 3.5 / 2 + 1.5 = 3.25 m); the parked cars' sides stand a little inside the lane (2.1 m wide).
+    st = narrow.street
+    assert (st.half_road_width - st.parking_width) + st.lane_offset(0) == pytest.approx(2.0)
