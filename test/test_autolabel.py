@@ -303,6 +303,43 @@ def test_seen_through_observations_lie_apart_only_when_their_boxes_travel():
         TrackConfig(evidence_travel="median")
 
 
+def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
+    from ros2_mos.offline.tracks import SEEN_THROUGH, WAITED, Observation, Track, TrackConfig, Tracker
+
+    def obs(scan: int, x: float, far: float = 0.0, size: tuple[float, float] = (4.5, 1.8)) -> Observation:
+        lo, hi = np.array([x, 2.0, 0.0]), np.array([x + size[0], 2.0 + size[1], 1.5])
+        return Observation(scan, 0, (lo + hi) / 2, 100, lo, hi, far, far)
+
+    tracker = Tracker(TrackConfig(handover_scans=3, handover_margin=0.3, handover_area_ratio=4.0))
+    tracker.tracks = [
+        Track(0, [obs(k, 10.0) for k in range(22, 34)]),  # waits at x 10-14.5 from scan 22 through 33 ...
+        Track(1, [obs(33 + k, 10.5 + 0.3 * k, far=0.5) for k in range(20)]),  # ... and leaves as another track
+        Track(2, [obs(k, 10.0) for k in range(16)]),  # stood there before, left at scan 15 (7 scans before 22)
+        Track(3, [obs(k, 15.7) for k in range(34)]),  # ends then too, 0.7 m ahead of it (> 2 x 0.3 m): parked
+        Track(4, [obs(k, 40.0) for k in range(20)]),  # stood where track 5 began, which it handed over to ...
+        Track(5, [obs(19 + k, 40.1) for k in range(10)]),  # ... and which ended where the mover 6 began
+        Track(6, [obs(30 + k, 40.2 + 0.4 * k, far=0.5) for k in range(10)]),
+        Track(7, [obs(34, 10.2)]),  # a fragment of the car as it moves off, where it waited: its place is still empty
+        # a parked car at x 70 that a passer-by merged with ends where the passer-by's track begins (scan 50) and
+        # goes on as another track: its place was not left empty
+        Track(8, [obs(k, 70.0) for k in range(51)]),
+        Track(9, [obs(50 + k, 70.3 + 0.5 * k, far=0.5) for k in range(10)]),
+        Track(10, [obs(51 + k, 70.0) for k in range(20)]),
+        # a pole (0.3 x 0.3 m) whose track ends where a passer-by's begins (1.5 x 1.2 m, 20 times larger): not it
+        Track(11, [obs(k, 100.0, size=(0.3, 0.3)) for k in range(60)]),
+        Track(12, [obs(60 + k, 99.5 + 0.1 * k, far=0.5, size=(1.5, 1.2)) for k in range(20)]),
+        # a car that waited (4.5 x 1.8 m) and is first seen moving off as a glimpse of 1.0 x 0.9 m (9 times smaller)
+        Track(13, [obs(k, 130.0) for k in range(60)]),
+        Track(14, [obs(60 + k, 133.5 + 0.5 * k, far=0.5, size=(1.0, 0.9)) for k in range(20)]),
+    ]
+    movers = tracker.movers()
+    assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH}
+    assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED}
+    assert Tracker(TrackConfig(handover_scans=0)).handovers(movers) == {}
+    with pytest.raises(ConfigError, match="handover_margin"):
+        TrackConfig(handover_margin=float("nan"))
+
+
 # -- hand-made drives -------------------------------------------------------------------------------------------
 def test_a_car_that_waits_then_drives_is_moving_throughout_in_semantickitti_and_only_while_driving_in_instant(
         tmp_path):

@@ -40,7 +40,7 @@ from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects
-from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, TrackConfig, Tracker, box_shift
+from ros2_mos.offline.tracks import ONLINE_MODEL, WAITED, Observation, TrackConfig, Tracker, box_shift
 from ros2_mos.offline.trajectory import farther_pass, starts_from_rest
 from ros2_mos.offline.visibility import SeenScan
 
@@ -187,7 +187,9 @@ class AutoLabeler:
         poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
         tracker = Tracker(self.config.tracks)
         cue_skipped = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir, progress)
-        result = AutolabelResult(drive.name, n, poses, stamps, tracker, tracker.movers(), sizes,
+        movers = tracker.movers()
+        movers.update(tracker.handovers(movers))
+        result = AutolabelResult(drive.name, n, poses, stamps, tracker, movers, sizes,
                                  cue_model=self.cue_model.name if self.cue_model is not None else "",
                                  cue_skipped=cue_skipped, odometry_followed=followed)
         result.moving_ever = self._moving_ever(result)
@@ -345,6 +347,8 @@ class AutoLabeler:
         out = set()
         for tid, evidence in result.movers.items():
             obs = result.tracker.tracks[tid].observations
+            if evidence == WAITED:  # it stood there
+                continue
             if evidence == ONLINE_MODEL:  # no seen-through place to move from: the online model's word, scan by scan
                 out.update((o.scan, o.obj) for o in obs if o.online >= CUE_MOVING_NOW)
                 continue
@@ -384,7 +388,9 @@ class AutoLabeler:
                 continue
             lo = np.array([o.lo[:2] for o in obs]) - cfg.support_margin
             hi = np.array([o.hi[:2] for o in obs]) + cfg.support_margin
-            evidence = np.array([o.far >= cfg.tracks.seen_through for o in obs])
+            # A track that waited, then left (Tracker.handovers): where it stood when it ended.
+            evidence = np.arange(len(obs)) == len(obs) - 1 if evidence == WAITED else \
+                np.array([o.far >= cfg.tracks.seen_through for o in obs])
             overlap = ((lo[:, None, :] <= hi[None, evidence, :]) & (hi[:, None, :] >= lo[None, evidence, :])).all(-1)
             out.update((o.scan, o.obj) for o, supported in zip(obs, overlap.any(axis=1)) if supported)
         return out

@@ -24,6 +24,9 @@ from ros2_mos.core.errors import ConfigError
 #: The evidence that makes a track a mover (:meth:`Tracker.movers`).
 SEEN_THROUGH = "seen through"
 ONLINE_MODEL = "online model"
+#: A track that stood where a mover's track began as it ended (:meth:`Tracker.handovers`): the same object, which
+#: waited, then left; its track broke as it moved off (its cluster split, or its centroid jumped).
+WAITED = "waited, then left"
 #: How far apart seen-through observations lie (:func:`evidence_travel`).
 EVIDENCE_TRAVEL = ("box", "centroid")
 
@@ -49,17 +52,23 @@ class TrackConfig:
     cue_share: float = 0.6
     cue_observations: int = 5
     cue_track_share: float = 0.5
+    #: scans: a track that ends within this many scans of where a mover's track begins (their boxes, grown by
+    #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
+    handover_scans: int = 3
+    handover_margin: float = 0.3
+    handover_area_ratio: float = 4.0  # ... and its last box's footprint at most this many times smaller
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
 
-        check_numbers(self, "autolabel tracks", zero_ok=("moving_share",),
+        check_numbers(self, "autolabel tracks", zero_ok=("moving_share", "handover_scans", "handover_margin"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
                               f"{self.evidence_travel!r}")
-        if self.max_area_ratio < 1.0:
-            raise ConfigError(f"autolabel tracks: max_area_ratio must be >= 1, got {self.max_area_ratio!r}")
+        for name in ("max_area_ratio", "handover_area_ratio"):
+            if getattr(self, name) < 1.0:
+                raise ConfigError(f"autolabel tracks: {name} must be >= 1, got {getattr(self, name)!r}")
 
 
 @dataclass
@@ -217,6 +226,55 @@ class Tracker:
         cfg = self.config
         hits = sum(o.online >= cfg.cue_share for o in track.observations)
         return hits >= cfg.cue_observations and hits >= cfg.cue_track_share * len(track.observations)
+
+    def handovers(self, movers: dict[int, str]) -> dict[int, str]:
+        """{track id: WAITED} for the tracks that are a mover before it moved. A car that waits at a light and then
+        drives off often breaks its track as it moves off (its cluster splits, its centroid jumps), and where it
+        waited is not always seen empty later (the sensor has turned into another street); under SemanticKITTI's
+        convention it is moving there too.
+
+        Such a track ended (its last observation) within ``handover_scans`` of the first observation of a mover's track
+        (or of another such track), began before it, its last box overlaps that first box from above (both grown by
+        ``handover_margin``) and is at most ``handover_area_ratio`` times smaller (a pole or a trunk that a passer-by
+        walked past is far smaller; a car that waited is larger than the first glimpse of it moving off, up to 13 times
+        on the simulated jams), and no other track but the movers' began in its last box within ``handover_scans`` of
+        its end: a parked car that a passer-by merged with ends where the passer-by's track begins, and goes on as
+        another track. Fragments of a car moving off (tracks shorter than ``handover_scans``) do not count, nor does
+        the next car of a queue, whose track began long before it took the place."""
+        cfg = self.config
+        if cfg.handover_scans == 0 or not movers:
+            return {}
+        last_scan = np.array([t.last.scan for t in self.tracks])
+        first_scan = np.array([t.observations[0].scan for t in self.tracks])
+        last_lo = np.array([t.last.lo[:2] for t in self.tracks])
+        last_hi = np.array([t.last.hi[:2] for t in self.tracks])
+        first_lo = np.array([t.observations[0].lo[:2] for t in self.tracks])
+        first_hi = np.array([t.observations[0].hi[:2] for t in self.tracks])
+        track_len = np.array([len(t.observations) for t in self.tracks])
+        margin = cfg.handover_margin
+        out: dict[int, str] = {}
+
+        def left_empty(a: int) -> bool:
+            """No other track (but movers, and fragments shorter than ``handover_scans``) began where track ``a``
+            ended, as it ended: its place was not taken over by the object it was."""
+            c = np.flatnonzero((np.abs(first_scan - last_scan[a]) <= cfg.handover_scans) & (first_scan > first_scan[a])
+                               & (track_len >= cfg.handover_scans) & (first_lo <= last_hi[a]).all(axis=1)
+                               & (first_hi >= last_lo[a]).all(axis=1))
+            return all(int(t) in movers or int(t) in out or t == a for t in c)
+
+        todo = list(movers)
+        while todo:
+            b = self.tracks[todo.pop()]
+            first = b.observations[0]
+            near = np.flatnonzero((np.abs(last_scan - first.scan) <= cfg.handover_scans) & (first_scan < first.scan)
+                                  & (last_lo - margin <= first.hi[:2] + margin).all(axis=1)
+                                  & (last_hi + margin >= first.lo[:2] - margin).all(axis=1))
+            areas = np.array([footprint(self.tracks[a].last) for a in near.tolist()])
+            for a in near[areas * cfg.handover_area_ratio >= footprint(first)].tolist():
+                if a not in movers and a not in out and left_empty(a):
+                    out[a] = WAITED
+                    todo.append(a)
+        return out
 
     def movers(self) -> dict[int, str]:
         """{track id: the evidence that makes it a mover}: 'seen through', else 'online model'."""
