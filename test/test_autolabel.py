@@ -310,7 +310,8 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
         lo, hi = np.array([x, 2.0, 0.0]), np.array([x + size[0], 2.0 + size[1], 1.5])
         return Observation(scan, 0, (lo + hi) / 2, 100, lo, hi, far, far)
 
-    tracker = Tracker(TrackConfig(handover_scans=3, handover_margin=0.3, handover_area_ratio=4.0))
+    tracker = Tracker(TrackConfig(handover_scans=3, handover_margin=0.3, handover_larger=5.0, handover_smaller=0.5,
+                                  handover_max_area=9.0))
     tracker.tracks = [
         Track(0, [obs(k, 10.0) for k in range(22, 34)]),  # waits at x 10-14.5 from scan 22 through 33 ...
         Track(1, [obs(33 + k, 10.5 + 0.3 * k, far=0.5) for k in range(20)]),  # ... and leaves as another track
@@ -328,13 +329,20 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
         # a pole (0.3 x 0.3 m) whose track ends where a passer-by's begins (1.5 x 1.2 m, 20 times larger): not it
         Track(11, [obs(k, 100.0, size=(0.3, 0.3)) for k in range(60)]),
         Track(12, [obs(60 + k, 99.5 + 0.1 * k, far=0.5, size=(1.5, 1.2)) for k in range(20)]),
-        # a car that waited (4.5 x 1.8 m) and is first seen moving off as a glimpse of 1.0 x 0.9 m (9 times smaller)
+        # a car that waited (4.5 x 1.8 m) and is first seen moving off as a glimpse of 2.0 x 0.9 m (4.5 times smaller)
         Track(13, [obs(k, 130.0) for k in range(60)]),
-        Track(14, [obs(60 + k, 133.5 + 0.5 * k, far=0.5, size=(1.0, 0.9)) for k in range(20)]),
+        Track(14, [obs(60 + k, 133.5 + 0.5 * k, far=0.5, size=(2.0, 0.9)) for k in range(20)]),
+        # a cluster of 6 x 2 m (12 m2, larger than a car) that a passer-by (4 x 1.8 m) leaves
+        Track(15, [obs(k, 160.0, size=(6.0, 2.0)) for k in range(60)]),
+        Track(16, [obs(60 + k, 165.5 + 0.5 * k, far=0.5) for k in range(20)]),
     ]
     movers = tracker.movers()
-    assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH}
+    assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH,
+                      16: SEEN_THROUGH}
     assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED}
+    for glimpse, handed in ((1.0, False), (2.0, True)):  # 9 times smaller: not it; 4.5 times: it
+        tracker.tracks[14] = Track(14, [obs(60 + k, 133.5 + 0.5 * k, far=0.5, size=(glimpse, 0.9)) for k in range(20)])
+        assert (13 in tracker.handovers(movers)) == handed
     assert Tracker(TrackConfig(handover_scans=0)).handovers(movers) == {}
     with pytest.raises(ConfigError, match="handover_margin"):
         TrackConfig(handover_margin=float("nan"))

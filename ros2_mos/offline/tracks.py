@@ -56,17 +56,24 @@ class TrackConfig:
     #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
     handover_scans: int = 3
     handover_margin: float = 0.3
-    handover_area_ratio: float = 4.0  # ... and its last box's footprint at most this many times smaller
+    #: ... when its last box's footprint is at most this many times the mover's first box (a car that waited is
+    #: larger than the first glimpse of it moving off: 4.2-4.8 times on the simulated jams) ...
+    handover_larger: float = 5.0
+    #: ... and at least this share of it (a pole, or a parked car that a passer-by walked past, is smaller) ...
+    handover_smaller: float = 0.5
+    #: ... and at most this many square metres: a car (larger clusters that a passer-by left, on sparse sensors
+    #: above all, are not it)
+    handover_max_area: float = 9.0
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
 
         check_numbers(self, "autolabel tracks", zero_ok=("moving_share", "handover_scans", "handover_margin"),
-                      at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share"))
+                      at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
                               f"{self.evidence_travel!r}")
-        for name in ("max_area_ratio", "handover_area_ratio"):
+        for name in ("max_area_ratio", "handover_larger"):
             if getattr(self, name) < 1.0:
                 raise ConfigError(f"autolabel tracks: {name} must be >= 1, got {getattr(self, name)!r}")
 
@@ -235,12 +242,12 @@ class Tracker:
 
         Such a track ended (its last observation) within ``handover_scans`` of the first observation of a mover's track
         (or of another such track), began before it, its last box overlaps that first box from above (both grown by
-        ``handover_margin``) and is at most ``handover_area_ratio`` times smaller (a pole or a trunk that a passer-by
-        walked past is far smaller; a car that waited is larger than the first glimpse of it moving off, up to 13 times
-        on the simulated jams), and no other track but the movers' began in its last box within ``handover_scans`` of
-        its end: a parked car that a passer-by merged with ends where the passer-by's track begins, and goes on as
-        another track. Fragments of a car moving off (tracks shorter than ``handover_scans``) do not count, nor does
-        the next car of a queue, whose track began long before it took the place."""
+        ``handover_margin``) and is car-sized beside it (``handover_smaller`` to ``handover_larger`` times its
+        footprint, at most ``handover_max_area``: a pole, or a cluster of parked cars and hedges that a passer-by
+        walked past, is not), and no other track but the movers' began in its last box within ``handover_scans`` of its
+        end: a parked car that a passer-by merged with ends where the passer-by's track begins, and goes on as another
+        track. Fragments of a car moving off (tracks shorter than ``handover_scans``) do not count, nor does the next
+        car of a queue, whose track began long before it took the place."""
         cfg = self.config
         if cfg.handover_scans == 0 or not movers:
             return {}
@@ -270,7 +277,9 @@ class Tracker:
                                   & (last_lo - margin <= first.hi[:2] + margin).all(axis=1)
                                   & (last_hi + margin >= first.lo[:2] - margin).all(axis=1))
             areas = np.array([footprint(self.tracks[a].last) for a in near.tolist()])
-            for a in near[areas * cfg.handover_area_ratio >= footprint(first)].tolist():
+            size_fits = ((areas <= cfg.handover_larger * footprint(first))
+                         & (areas >= cfg.handover_smaller * footprint(first)) & (areas <= cfg.handover_max_area))
+            for a in near[size_fits].tolist():
                 if a not in movers and a not in out and left_empty(a):
                     out[a] = WAITED
                     todo.append(a)
