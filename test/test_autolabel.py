@@ -105,6 +105,11 @@ def test_objects_keep_a_car_and_drop_a_building_and_the_ground():
     assert (found.point_object[4800:4850] == next(iter(car_ids))).mean() > 0.9  # wheels attached under the car
     assert found.attached[4800:4850].mean() > 0.9 and not found.attached[4000:4800].any()
     assert (found.point_object[4850:] == -1).all()  # 12 m high: not an object
+    # A stray return 50 km away (a reflection, a bad driver) changes nothing and is ground: the ground grid covers
+    # only what lies within max_range of the sensor (with the stray in it, the grid would be 50 km long).
+    stray = find_objects(np.vstack([pts, [[50_000.0, 0.0, 3.0]]]).astype(np.float32))
+    assert (stray.point_object[:-1] == found.point_object).all() and stray.point_object[-1] == -1
+    assert stray.height_above_ground[-1] == 0.0
 
 
 def test_kerbs_flat_rings_low_down_and_the_sensor_s_own_vehicle_are_no_objects_but_a_van_beside_it_is():

@@ -233,9 +233,14 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
     """Ground, clusters and object-sized clusters of one scan (sensor frame, finite points); points in ``vehicle``'s
     cells (:meth:`VehicleReturns.cells`) are on no object."""
     n = len(points)
-    ground = local_ground(points, config.ground_cell, config.ground_radius, config.ground_outlier)
-    height = (points[:, 2] - ground).astype(np.float32)
     horizontal = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
+    # The ground of the points that can be on an object or beside one (the grid's size, and memory, stay bounded
+    # whatever the farthest return); farther points are ground (height 0).
+    near = np.flatnonzero(horizontal < (config.max_range + (config.ground_radius + 1) * config.ground_cell) ** 2)
+    height = np.zeros(n, np.float32)
+    if len(near):
+        ground = local_ground(points[near], config.ground_cell, config.ground_radius, config.ground_outlier)
+        height[near] = points[near, 2] - ground
     free = ~on_vehicle(points, vehicle, config) if vehicle is not None else True
     candidate = np.flatnonzero((height > config.ground_height) & free
                                & (horizontal + points[:, 2] ** 2 < config.max_range**2))
