@@ -40,7 +40,15 @@ from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects
-from ros2_mos.offline.tracks import ONLINE_MODEL, WAITED, Observation, TrackConfig, Tracker, box_shift
+from ros2_mos.offline.tracks import (
+    ONLINE_MODEL,
+    WAITED,
+    Observation,
+    TrackConfig,
+    Tracker,
+    box_shift,
+    overlap_from_above,
+)
 from ros2_mos.offline.trajectory import farther_pass, starts_from_rest
 from ros2_mos.offline.visibility import SeenScan
 
@@ -391,7 +399,7 @@ class AutoLabeler:
             # A track that waited, then left (Tracker.handovers): where it stood when it ended.
             evidence = np.arange(len(obs)) == len(obs) - 1 if evidence == WAITED else \
                 np.array([o.far >= cfg.tracks.seen_through for o in obs])
-            overlap = ((lo[:, None, :] <= hi[None, evidence, :]) & (hi[:, None, :] >= lo[None, evidence, :])).all(-1)
+            overlap = overlap_from_above(lo[:, None, :], hi[:, None, :], lo[None, evidence, :], hi[None, evidence, :])
             out.update((o.scan, o.obj) for o, supported in zip(obs, overlap.any(axis=1)) if supported)
         return out
 

@@ -157,6 +157,11 @@ def evidence_travel(observations: list[Observation], measure: str = "box") -> fl
 MIN_FOOTPRINT_SIDE = 0.5
 
 
+def overlap_from_above(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray) -> np.ndarray:
+    """Whether top-view boxes a and b (``(..., 2)`` corners, broadcast against each other) overlap."""
+    return ((lo_a <= hi_b) & (hi_a >= lo_b)).all(axis=-1)
+
+
 def footprint(obs: Observation) -> float:
     """The area (m^2) of an observation's box seen from above, each side at least ``MIN_FOOTPRINT_SIDE``."""
     side = np.maximum(obs.size[:2], MIN_FOOTPRINT_SIDE)
@@ -265,8 +270,8 @@ class Tracker:
             """No other track (but movers, and fragments shorter than ``handover_scans``) began where track ``a``
             ended, as it ended: its place was not taken over by the object it was."""
             c = np.flatnonzero((np.abs(first_scan - last_scan[a]) <= cfg.handover_scans) & (first_scan > first_scan[a])
-                               & (track_len >= cfg.handover_scans) & (first_lo <= last_hi[a]).all(axis=1)
-                               & (first_hi >= last_lo[a]).all(axis=1))
+                               & (track_len >= cfg.handover_scans)
+                               & overlap_from_above(first_lo, first_hi, last_lo[a], last_hi[a]))
             return all(int(t) in movers or int(t) in out or t == a for t in c)
 
         todo = list(movers)
@@ -274,8 +279,8 @@ class Tracker:
             b = self.tracks[todo.pop()]
             first = b.observations[0]
             near = np.flatnonzero((np.abs(last_scan - first.scan) <= cfg.handover_scans) & (first_scan < first.scan)
-                                  & (last_lo - margin <= first.hi[:2] + margin).all(axis=1)
-                                  & (last_hi + margin >= first.lo[:2] - margin).all(axis=1))
+                                  & overlap_from_above(last_lo - margin, last_hi + margin, first.lo[:2] - margin,
+                                                       first.hi[:2] + margin))
             areas = np.array([footprint(self.tracks[a].last) for a in near.tolist()])
             size_fits = ((areas <= cfg.handover_larger * footprint(first))
                          & (areas >= cfg.handover_smaller * footprint(first)) & (areas <= cfg.handover_max_area))
