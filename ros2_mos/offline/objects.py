@@ -113,14 +113,13 @@ def local_ground(points: np.ndarray, cell: float, radius: int, outlier_drop: flo
     shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1)
     z = points[:, 2].astype(np.float32)
     lowest = _cell_lowest(ij, z, shape)
-    if np.isfinite(outlier_drop):
-        windows = np.sort(_windows(lowest, radius), axis=0)  # empty cells (inf) last
-        filled = np.isfinite(windows).sum(axis=0)
-        quartile = np.take_along_axis(windows, np.maximum(filled - 1, 0)[None] // 4, axis=0)[0]
-        kept = z >= quartile[ij[:, 0], ij[:, 1]] - outlier_drop
-        if not kept.all():
-            lowest = _cell_lowest(ij[kept], z[kept], shape)
-    ground = _windows(lowest, radius).min(axis=0)
+    if not np.isfinite(outlier_drop):
+        return _windows(lowest, radius).min(axis=0)[ij[:, 0], ij[:, 1]]
+    windows = np.sort(_windows(lowest, radius), axis=0)  # empty cells (inf) last; row 0 is the minimum
+    filled = np.isfinite(windows).sum(axis=0)
+    quartile = np.take_along_axis(windows, np.maximum(filled - 1, 0)[None] // 4, axis=0)[0]
+    kept = z >= quartile[ij[:, 0], ij[:, 1]] - outlier_drop
+    ground = windows[0] if kept.all() else _windows(_cell_lowest(ij[kept], z[kept], shape), radius).min(axis=0)
     return ground[ij[:, 0], ij[:, 1]]
 
 
