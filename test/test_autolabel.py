@@ -340,17 +340,52 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
         # a cluster of 6 x 2 m (12 m2, larger than a car) that a passer-by (4 x 1.8 m) leaves
         Track(15, [obs(k, 160.0, size=(6.0, 2.0)) for k in range(60)]),
         Track(16, [obs(60 + k, 165.5 + 0.5 * k, far=0.5) for k in range(20)]),
+        # a car that waited (x 190-194.5) and moved off bit by bit: its track ends as a stub 0.6 m long
+        Track(17, [obs(k, 190.0) for k in range(31)] + [obs(31 + i, 190.0, size=(side, 1.8))
+                                                        for i, side in enumerate((2.0, 1.0, 0.6))]),
+        Track(18, [obs(33 + k, 190.8 + 0.5 * k, far=0.5) for k in range(20)]),
     ]
     movers = tracker.movers()
     assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH,
-                      16: SEEN_THROUGH}
-    assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED}
+                      16: SEEN_THROUGH, 18: SEEN_THROUGH}
+    assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED, 17: WAITED}
     for glimpse, handed in ((1.0, False), (2.0, True)):  # 9 times smaller: not it; 4.5 times: it
         tracker.tracks[14] = Track(14, [obs(60 + k, 133.5 + 0.5 * k, far=0.5, size=(glimpse, 0.9)) for k in range(20)])
         assert (13 in tracker.handovers(movers)) == handed
     assert Tracker(TrackConfig(handover_scans=0)).handovers(movers) == {}
     with pytest.raises(ConfigError, match="handover_margin"):
         TrackConfig(handover_margin=float("nan"))
+
+
+def test_an_object_whose_seen_through_part_lies_apart_from_the_rest_is_two():
+    from ros2_mos.offline.autolabel import split_seen_apart
+
+    def surface(x0: float, x1: float, y: float, z0: float = 0.2, z1: float = 1.5, step: float = 0.05) -> np.ndarray:
+        """Points on the vertical face x0..x1 at y, every ``step`` m."""
+        x, z = np.meshgrid(np.arange(x0, x1, step), np.arange(z0, z1, step))
+        return np.stack([x.ravel(), np.full(x.size, y), z.ravel()], axis=1)
+
+    # A parked car's side (y 2.2) and a cyclist 0.25 m beside it (y 1.95), one object; only the cyclist seen through.
+    car, cyclist = surface(40.0, 44.5, 2.2), surface(41.0, 42.8, 1.95)
+    world = np.concatenate([car, cyclist])
+    seen = np.r_[np.zeros(len(car), bool), np.ones(len(cyclist), bool)]
+    obj, n = split_seen_apart(world, np.zeros(len(world), np.int64), seen, 1, 0.1, 8)
+    assert n == 2 and (obj[len(car):] == 1).all() and (obj[: len(car)] == 0).all()
+    # A car that moves: its rear 1 m was seen through by a later scan, its front not; one surface, one object.
+    side = surface(10.0, 14.5, 3.0)
+    rear = side[:, 0] < 11.0
+    obj, n = split_seen_apart(side, np.zeros(len(side), np.int64), rear, 1, 0.1, 8)
+    assert n == 1 and (obj == 0).all()
+    # Seen-through points scattered over a parked car (a few per cent, noise): no part of their own.
+    rng = np.random.default_rng(0)
+    obj, n = split_seen_apart(car, np.zeros(len(car), np.int64), rng.random(len(car)) < 0.05, 1, 0.1, 8)
+    assert n == 1
+    # A part that was seen through above another that was not (a roof line over a bonnet): they overlap from above.
+    low, high = surface(20.0, 24.0, 5.0, 0.2, 0.6), surface(20.5, 23.5, 5.0, 1.0, 1.4)
+    both = np.concatenate([low, high])
+    obj, n = split_seen_apart(both, np.zeros(len(both), np.int64), np.r_[np.zeros(len(low), bool),
+                                                                         np.ones(len(high), bool)], 1, 0.1, 8)
+    assert n == 1
 
 
 # -- hand-made drives -------------------------------------------------------------------------------------------

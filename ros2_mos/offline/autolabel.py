@@ -39,7 +39,7 @@ from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_conve
 from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
-from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects
+from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects, voxel_clusters
 from ros2_mos.offline.tracks import (
     ONLINE_MODEL,
     WAITED,
@@ -81,7 +81,7 @@ class AutolabelConfig:
     #: ... and these too for motion at any time (SemanticKITTI's).
     far_offsets: tuple[int, ...] = (-40, -20, -10, 10, 20, 40)
     #: An observation of a mover moves now when this share of its points was seen through by a near scan ...
-    instant_seen_through: float = 0.3
+    instant_seen_through: float = 0.15
     #: ... or its box (or centroid) moved this fast (m/s) over the observations ``instant_span`` before and after it.
     instant_speed: float = 0.4
     instant_span: int = 5
@@ -90,6 +90,9 @@ class AutolabelConfig:
     #: An observation of a mover is moving (SemanticKITTI's convention) only where its box, grown by this many
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
     support_margin: float = 0.3
+    #: An object whose points seen through and not seen through lie apart (:func:`split_seen_apart`, its parts cut
+    #: with voxels of this many metres) is two (0: never cut).
+    split_voxel: float = 0.1
     use_poses: bool = False  # the drive's own poses instead of KISS-ICP
     #: KISS-ICP also over the drive backwards where the sensor stood and moved off; its poses are taken when it
     #: travelled farther than the forward pass by ``odometry_margin`` m and ``odometry_margin_share`` of the path:
@@ -108,7 +111,7 @@ class AutolabelConfig:
         if self.instant_motion not in INSTANT_MOTION:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
-        check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin", "odometry_margin",
+        check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin", "split_voxel", "odometry_margin",
                                                       "odometry_margin_share"),
                       at_most_one=("instant_seen_through",))
 
@@ -319,30 +322,37 @@ class AutoLabeler:
         found = find_objects(points, cfg.objects, vehicle)
         on_object = np.flatnonzero((found.point_object >= 0) & ~found.attached)
         obj = found.point_object[on_object]
-        counts = found.counts
         world = np.ascontiguousarray(transform_columns(points[on_object], pose).T)
-        near = np.zeros(found.n_objects)
-        far = np.zeros(found.n_objects)
+        through = {o: seen[k + o].seen_through(world) for o in (*cfg.near_offsets, *cfg.far_offsets)
+                   if k + o in seen}  # per offset, per point on an object: seen through by that scan
+        seen_any = np.logical_or.reduce(list(through.values())) if through else np.zeros(len(obj), bool)
+        n_objects = found.n_objects
+        if cfg.split_voxel > 0:  # a cyclist merged with the parked car beside it: two objects
+            obj, n_objects = split_seen_apart(world, obj, seen_any, n_objects, cfg.split_voxel, cfg.objects.min_points)
+            point_object = found.point_object.copy()
+            point_object[on_object] = obj
+        else:
+            point_object = found.point_object
+        counts = np.bincount(obj, minlength=n_objects)
+        near = np.zeros(n_objects)
+        far = np.zeros(n_objects)
         for offsets, best in ((cfg.near_offsets, near), (cfg.far_offsets, far)):
             for o in offsets:
-                other = seen.get(k + o)
-                if other is None:
-                    continue
-                hits = np.bincount(obj[other.seen_through(world)], minlength=found.n_objects) / counts
-                np.maximum(best, hits, out=best)
+                if o in through:
+                    np.maximum(best, np.bincount(obj[through[o]], minlength=n_objects) / counts, out=best)
         np.maximum(far, near, out=far)
-        sums = np.stack([np.bincount(obj, world[:, i], found.n_objects) for i in range(3)], axis=1)
+        sums = np.stack([np.bincount(obj, world[:, i], n_objects) for i in range(3)], axis=1)
         centroids = sums / counts[:, None]
-        lo = np.full((found.n_objects, 3), np.inf)
-        hi = np.full((found.n_objects, 3), -np.inf)
+        lo = np.full((n_objects, 3), np.inf)
+        hi = np.full((n_objects, 3), -np.inf)
         for i in range(3):
             np.minimum.at(lo[:, i], obj, world[:, i])
             np.maximum.at(hi[:, i], obj, world[:, i])
-        online = np.zeros(found.n_objects) if labelled is None else \
-            np.bincount(obj, labelled[on_object].astype(np.float64), found.n_objects) / counts
+        online = np.zeros(n_objects) if labelled is None else \
+            np.bincount(obj, labelled[on_object].astype(np.float64), n_objects) / counts
         observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]),
-                                    float(online[j])) for j in range(found.n_objects)]
-        return found.point_object, observations
+                                    float(online[j])) for j in range(n_objects)]
+        return point_object, observations
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
         """The observations of movers that move in their own scan (the instant convention): seen through by a near
@@ -413,6 +423,39 @@ class AutoLabeler:
             else:
                 moving[j] = (scan, j) in result.moving_now
         return moving
+
+
+#: :func:`split_seen_apart`: a part of an object is its seen-through part where at least this share of its points
+#: was seen through, and the rest is cut off only where at most ``SPLIT_REST_SEEN`` of it was.
+SPLIT_PART_SEEN = 0.5
+SPLIT_REST_SEEN = 0.1
+
+
+def split_seen_apart(world: np.ndarray, obj: np.ndarray, seen: np.ndarray, n_objects: int, voxel: float,
+                     min_points: int) -> tuple[np.ndarray, int]:
+    """Objects (``obj``: per point, world ``world``) made of a part seen through by other scans and a part that was
+    not, the two apart from above, cut in two: a cyclist who passes a parked car 0.2-0.8 m away is one voxel cluster
+    with it. The parts: clusters of ``voxel`` (finer than the objects') with at least ``SPLIT_PART_SEEN`` of their
+    points seen through, and the rest, which must hold at most ``SPLIT_REST_SEEN`` seen through; each of
+    ``min_points`` or more. A car seen through only where it was a moment before (its rear) stays one: its parts
+    touch. Returns the new per-point ids (the seen parts numbered from ``n_objects`` on) and the object count."""
+    counts = np.bincount(obj, minlength=n_objects)
+    seen_counts = np.bincount(obj[seen], minlength=n_objects)
+    out = obj.copy()
+    for j in np.flatnonzero((seen_counts >= min_points) & (counts - seen_counts >= min_points)).tolist():
+        idx = np.flatnonzero(obj == j)
+        sub = voxel_clusters(world[idx], voxel)
+        part = (np.bincount(sub, seen[idx]) / np.bincount(sub) >= SPLIT_PART_SEEN)[sub]
+        a, b = idx[part], idx[~part]
+        if len(a) < min_points or len(b) < min_points or seen[b].mean() > SPLIT_REST_SEEN:
+            continue
+        lo_a, hi_a = world[a, :2].min(axis=0), world[a, :2].max(axis=0)
+        lo_b, hi_b = world[b, :2].min(axis=0), world[b, :2].max(axis=0)
+        if overlap_from_above(lo_a, hi_a, lo_b, hi_b):
+            continue
+        out[a] = n_objects
+        n_objects += 1
+    return out, n_objects
 
 
 def scan_labels(labeler: AutoLabeler, result: AutolabelResult, workdir: Path, scan: int,

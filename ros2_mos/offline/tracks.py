@@ -239,6 +239,14 @@ class Tracker:
         hits = sum(o.online >= cfg.cue_share for o in track.observations)
         return hits >= cfg.cue_observations and hits >= cfg.cue_track_share * len(track.observations)
 
+    def _car_sized_as_it_ended(self, track: Track, beside: float) -> bool:
+        """Whether one of ``track``'s last ``handover_scans`` + 1 observations is ``handover_smaller`` to
+        ``handover_larger`` times the footprint ``beside``, and at most ``handover_max_area``."""
+        cfg = self.config
+        areas = np.array([footprint(o) for o in track.observations[-(cfg.handover_scans + 1):]])
+        return bool(((areas >= cfg.handover_smaller * beside) & (areas <= cfg.handover_larger * beside)
+                     & (areas <= cfg.handover_max_area)).any())
+
     def handovers(self, movers: dict[int, str]) -> dict[int, str]:
         """{track id: WAITED} for the tracks that are a mover before it moved. A car that waits at a light and then
         drives off often breaks its track as it moves off (its cluster splits, its centroid jumps), and where it
@@ -247,7 +255,8 @@ class Tracker:
 
         Such a track ended (its last observation) within ``handover_scans`` of the first observation of a mover's track
         (or of another such track), began before it, its last box overlaps that first box from above (both grown by
-        ``handover_margin``) and is car-sized beside it (``handover_smaller`` to ``handover_larger`` times its
+        ``handover_margin``) and is car-sized beside it (one of its last ``handover_scans`` + 1 observations: a car
+        moving off leaves a shrinking stub; ``handover_smaller`` to ``handover_larger`` times its
         footprint, at most ``handover_max_area``: a pole, or a cluster of parked cars and hedges that a passer-by
         walked past, is not), and no other track but the movers' began in its last box within ``handover_scans`` of its
         end: a parked car that a passer-by merged with ends where the passer-by's track begins, and goes on as another
@@ -281,9 +290,8 @@ class Tracker:
             near = np.flatnonzero((np.abs(last_scan - first.scan) <= cfg.handover_scans) & (first_scan < first.scan)
                                   & overlap_from_above(last_lo - margin, last_hi + margin, first.lo[:2] - margin,
                                                        first.hi[:2] + margin))
-            areas = np.array([footprint(self.tracks[a].last) for a in near.tolist()])
-            size_fits = ((areas <= cfg.handover_larger * footprint(first))
-                         & (areas >= cfg.handover_smaller * footprint(first)) & (areas <= cfg.handover_max_area))
+            size_fits = np.array([self._car_sized_as_it_ended(self.tracks[a], footprint(first))
+                                  for a in near.tolist()], bool)
             for a in near[size_fits].tolist():
                 if a not in movers and a not in out and left_empty(a):
                     out[a] = WAITED
