@@ -308,6 +308,20 @@ def test_seen_through_observations_lie_apart_only_when_their_boxes_travel():
         TrackConfig(evidence_travel="median")
 
 
+def test_parts_cut_off_for_being_seen_through_make_a_mover_only_if_they_travel():
+    from ros2_mos.offline.tracks import Observation, Track, TrackConfig, Tracker
+
+    def part(scan: int, x: float, cut: bool = True) -> Observation:
+        lo, hi = np.array([x, -6.2, -0.2]), np.array([x + 0.3, -5.9, 0.2])
+        return Observation(scan, 0, (lo + hi) / 2, 150, lo, hi, 0.4, 0.4, 0.0, cut)
+
+    tracker = Tracker(TrackConfig(min_evidence_travel=1.5))
+    pole = Track(0, [part(25 + 3 * i, -3.1) for i in range(4)])  # a thin pole cut off a hedge, seen round its edges
+    cyclist = Track(1, [part(25 + i, -3.1 + 0.5 * i) for i in range(4)])  # the cyclist cut off a parked car
+    assert not tracker.seen_moving(pole) and tracker.seen_moving(cyclist)
+    assert tracker.seen_moving(Track(2, [part(25 + 3 * i, -3.1, cut=False) for i in range(4)]))  # uncut: as before
+
+
 def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
     from ros2_mos.offline.tracks import SEEN_THROUGH, WAITED, Observation, Track, TrackConfig, Tracker
 

@@ -351,7 +351,7 @@ class AutoLabeler:
         online = np.zeros(n_objects) if labelled is None else \
             np.bincount(obj, labelled[on_object].astype(np.float64), n_objects) / counts
         observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]),
-                                    float(online[j])) for j in range(n_objects)]
+                                    float(online[j]), j >= found.n_objects) for j in range(n_objects)]
         return point_object, observations
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:

@@ -89,6 +89,7 @@ class Observation:
     near: float
     far: float
     online: float = 0.0  # share of its points the online model labelled moving (0 without the online cue)
+    cut: bool = False  # the seen-through part cut off an object (autolabel's ``split_seen_apart``)
 
     @property
     def size(self) -> np.ndarray:
@@ -224,14 +225,17 @@ class Tracker:
 
     def seen_moving(self, track: Track) -> bool:
         """Enough of the track's observations were seen through: a share of them, or fewer that lie apart (a car
-        that waited most of the drive and then left; a static object seen through now and then stays in place)."""
+        that waited most of the drive and then left; a static object seen through now and then stays in place). A
+        track made mostly of parts cut off an object for being seen through (:class:`Observation`'s ``cut``) must
+        travel: a thin pole beside a hedge is seen through around its edges, and cut off it."""
         cfg = self.config
         evidence = [o for o in track.observations if o.far >= cfg.seen_through]
         if len(evidence) < cfg.min_moving_observations:
             return False
-        if len(evidence) >= cfg.moving_share * len(track.observations):
-            return True
-        return evidence_travel(evidence, cfg.evidence_travel) >= cfg.min_evidence_travel
+        travelled = evidence_travel(evidence, cfg.evidence_travel) >= cfg.min_evidence_travel
+        if 2 * sum(o.cut for o in track.observations) > len(track.observations):
+            return travelled  # parts cut off for being seen through (a pole beside a hedge): only if they travel
+        return travelled or len(evidence) >= cfg.moving_share * len(track.observations)
 
     def labelled_moving(self, track: Track) -> bool:
         """The online model labelled enough of the track's observations moving (see ``TrackConfig.cue_share``)."""
