@@ -3,6 +3,7 @@ its command end to end on a simulated drive."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -358,14 +359,20 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
         Track(17, [obs(k, 190.0) for k in range(31)] + [obs(31 + i, 190.0, size=(side, 1.8))
                                                         for i, side in enumerate((2.0, 1.0, 0.6))]),
         Track(18, [obs(33 + k, 190.8 + 0.5 * k, far=0.5) for k in range(20)]),
+        # a sign post (0.4 x 0.3 m) whose track ends where a pedestrian's (0.5 x 0.5 m) begins: not a car
+        Track(19, [obs(k, 220.0, size=(0.4, 0.3)) for k in range(40)]),
+        Track(20, [obs(40 + k, 220.2 + 0.15 * k, far=0.5, size=(0.5, 0.5)) for k in range(20)]),
     ]
     movers = tracker.movers()
     assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH,
-                      16: SEEN_THROUGH, 18: SEEN_THROUGH}
+                      16: SEEN_THROUGH, 18: SEEN_THROUGH, 20: SEEN_THROUGH}
     assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED, 17: WAITED}
     for glimpse, handed in ((1.0, False), (2.0, True)):  # 9 times smaller: not it; 4.5 times: it
         tracker.tracks[14] = Track(14, [obs(60 + k, 133.5 + 0.5 * k, far=0.5, size=(glimpse, 0.9)) for k in range(20)])
         assert (13 in tracker.handovers(movers)) == handed
+    anything = Tracker(dataclasses.replace(tracker.config, handover_min_area=0.0))
+    anything.tracks = tracker.tracks
+    assert 19 in anything.handovers(movers)  # without the least area, the post would be the pedestrian waiting
     assert Tracker(TrackConfig(handover_scans=0)).handovers(movers) == {}
     with pytest.raises(ConfigError, match="handover_margin"):
         TrackConfig(handover_margin=float("nan"))

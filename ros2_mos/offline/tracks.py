@@ -56,19 +56,24 @@ class TrackConfig:
     #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
     handover_scans: int = 3
     handover_margin: float = 0.3
-    #: ... when its last box's footprint is at most this many times the mover's first box (a car that waited is
-    #: larger than the first glimpse of it moving off: 4.2-4.8 times on the simulated jams) ...
+    #: ... when its last box's footprint (or, where that is smaller, the stub of a car moving off, the track's
+    #: median footprint) is at most this many times the mover's first box (a car that waited is larger than the
+    #: first glimpse of it moving off: 4.2-4.8 times on the simulated jams) ...
     handover_larger: float = 5.0
     #: ... and at least this share of it (a pole, or a parked car that a passer-by walked past, is smaller) ...
     handover_smaller: float = 0.5
     #: ... and at most this many square metres: a car (larger clusters that a passer-by left, on sparse sensors
     #: above all, are not it)
     handover_max_area: float = 9.0
+    #: ... and at least this many: a car, even seen only from behind (poles, signs and pedestrians beside the
+    #: real r2's passers-by are not)
+    handover_min_area: float = 0.75
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
 
-        check_numbers(self, "autolabel tracks", zero_ok=("moving_share", "handover_scans", "handover_margin"),
+        check_numbers(self, "autolabel tracks",
+                      zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
@@ -244,12 +249,16 @@ class Tracker:
         return hits >= cfg.cue_observations and hits >= cfg.cue_track_share * len(track.observations)
 
     def _car_sized_as_it_ended(self, track: Track, beside: float) -> bool:
-        """Whether one of ``track``'s last ``handover_scans`` + 1 observations is ``handover_smaller`` to
-        ``handover_larger`` times the footprint ``beside``, and at most ``handover_max_area``."""
+        """Whether ``track``'s last box is ``handover_smaller`` to ``handover_larger`` times the footprint ``beside``
+        and ``handover_min_area`` to ``handover_max_area``; or, where it is smaller than that (the stub of a car
+        moving off), whether the track's median footprint is."""
         cfg = self.config
-        areas = np.array([footprint(o) for o in track.observations[-(cfg.handover_scans + 1):]])
-        return bool(((areas >= cfg.handover_smaller * beside) & (areas <= cfg.handover_larger * beside)
-                     & (areas <= cfg.handover_max_area)).any())
+        low = max(cfg.handover_smaller * beside, cfg.handover_min_area)
+        high = min(cfg.handover_larger * beside, cfg.handover_max_area)
+        area = footprint(track.last)
+        if area < low:
+            area = float(np.median([footprint(o) for o in track.observations]))
+        return low <= area <= high
 
     def handovers(self, movers: dict[int, str]) -> dict[int, str]:
         """{track id: WAITED} for the tracks that are a mover before it moved. A car that waits at a light and then
@@ -259,13 +268,14 @@ class Tracker:
 
         Such a track ended (its last observation) within ``handover_scans`` of the first observation of a mover's track
         (or of another such track), began before it, its last box overlaps that first box from above (both grown by
-        ``handover_margin``) and is car-sized beside it (one of its last ``handover_scans`` + 1 observations: a car
-        moving off leaves a shrinking stub; ``handover_smaller`` to ``handover_larger`` times its
+        ``handover_margin``) and is car-sized beside it (its last observation, or where that is smaller, the stub of a
+        car moving off, its median observation; ``handover_smaller`` to ``handover_larger`` times its
         footprint, at most ``handover_max_area``: a pole, or a cluster of parked cars and hedges that a passer-by
         walked past, is not), and no other track but the movers' began in its last box within ``handover_scans`` of its
         end: a parked car that a passer-by merged with ends where the passer-by's track begins, and goes on as another
         track. Fragments of a car moving off (tracks shorter than ``handover_scans``) do not count, nor does the next
-        car of a queue, whose track began long before it took the place."""
+        car of a queue, whose track began long before it took the place, nor a mover whose track began as a part cut
+        off an object for being seen through (a passer-by leaving the kerb or pole it was merged with)."""
         cfg = self.config
         if cfg.handover_scans == 0 or not movers:
             return {}
@@ -291,6 +301,8 @@ class Tracker:
         while todo:
             b = self.tracks[todo.pop()]
             first = b.observations[0]
+            if first.cut:  # it began cut off an object it passed: that object stood, and stays
+                continue
             near = np.flatnonzero((np.abs(last_scan - first.scan) <= cfg.handover_scans) & (first_scan < first.scan)
                                   & overlap_from_above(last_lo - margin, last_hi + margin, first.lo[:2] - margin,
                                                        first.hi[:2] + margin))
