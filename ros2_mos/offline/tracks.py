@@ -260,6 +260,14 @@ class Tracker:
             area = float(np.median([footprint(o) for o in track.observations]))
         return low <= area <= high
 
+    def _as_it_ended(self, track: Track) -> tuple[np.ndarray, np.ndarray]:
+        """The top-view box where ``track`` stood as it ended: its last box, or where it ended as the shrinking stub of
+        a car moving off (fewer points in each of its last ``handover_scans`` + 1 observations), all of theirs."""
+        last = track.observations[-(self.config.handover_scans + 1):]
+        if len(last) > 1 and all(a.points > b.points for a, b in zip(last, last[1:])):
+            return np.min([o.lo[:2] for o in last], axis=0), np.max([o.hi[:2] for o in last], axis=0)
+        return track.last.lo[:2], track.last.hi[:2]
+
     def handovers(self, movers: dict[int, str]) -> dict[int, str]:
         """{track id: WAITED} for the tracks that are a mover before it moved. A car that waits at a light and then
         drives off often breaks its track as it moves off (its cluster splits, its centroid jumps), and where it
@@ -267,7 +275,8 @@ class Tracker:
         convention it is moving there too.
 
         Such a track ended (its last observation) within ``handover_scans`` of the first observation of a mover's track
-        (or of another such track), began before it, its last box overlaps that first box from above (both grown by
+        (or of another such track), began before it, its last box (or, where it ended as a shrinking stub, the boxes of
+        its last ``handover_scans`` + 1 observations) overlaps that first box from above (both grown by
         ``handover_margin``) and is car-sized beside it (its last observation, or where that is smaller, the stub of a
         car moving off, its median observation; ``handover_smaller`` to ``handover_larger`` times its
         footprint, at most ``handover_max_area``: a pole, or a cluster of parked cars and hedges that a passer-by
@@ -281,8 +290,9 @@ class Tracker:
             return {}
         last_scan = np.array([t.last.scan for t in self.tracks])
         first_scan = np.array([t.observations[0].scan for t in self.tracks])
-        last_lo = np.array([t.last.lo[:2] for t in self.tracks])
-        last_hi = np.array([t.last.hi[:2] for t in self.tracks])
+        ending = [self._as_it_ended(t) for t in self.tracks]
+        last_lo = np.array([o[0] for o in ending])
+        last_hi = np.array([o[1] for o in ending])
         first_lo = np.array([t.observations[0].lo[:2] for t in self.tracks])
         first_hi = np.array([t.observations[0].hi[:2] for t in self.tracks])
         track_len = np.array([len(t.observations) for t in self.tracks])
