@@ -42,7 +42,7 @@ VALIDATION_SEEDS = {"easy": (9603, 9604, 9605, 9611, 9612, 9618, 9619, 9620),
 FRESH_SEEDS = {"traffic_jam": (9701, 9702, 9703, 9704), "narrow_street": (9711, 9712, 9713),
                "benchmark": (9721, 9722), "easy": (9731, 9732)}
 #: Drives for the last word on round 22's rules: scored once they were chosen; then narrow_street-9813 was looked
-#: into and one more setting chosen with them (``support_seen``), so ...
+#: into and a setting tried on them (not taken), and the handover rule changed once more, so ...
 UNSEEN_SEEDS = {"traffic_jam": (9801, 9802, 9803, 9804), "narrow_street": (9811, 9812, 9813),
                 "benchmark": (9821, 9822), "easy": (9831, 9832)}
 #: ... these have the last word on it, scored once, never looked into.

@@ -90,7 +90,6 @@ class AutolabelConfig:
     #: An observation of a mover is moving (SemanticKITTI's convention) only where its box, grown by this many
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
     support_margin: float = 0.3
-    support_seen: float = 0.3
     #: An object whose points seen through and not seen through lie apart (:func:`split_seen_apart`, its parts cut
     #: with voxels of this many metres) is two (0: never cut).
     split_voxel: float = 0.1
@@ -409,7 +408,7 @@ class AutoLabeler:
             hi = np.array([o.hi[:2] for o in obs]) + cfg.support_margin
             # A track that waited, then left (Tracker.handovers): where it stood when it ended.
             evidence = np.arange(len(obs)) == len(obs) - 1 if evidence == WAITED else \
-                np.array([o.far >= max(cfg.tracks.seen_through, cfg.support_seen) for o in obs])
+                np.array([o.far >= cfg.tracks.seen_through for o in obs])
             overlap = overlap_from_above(lo[:, None, :], hi[:, None, :], lo[None, evidence, :], hi[None, evidence, :])
             out.update((o.scan, o.obj) for o, supported in zip(obs, overlap.any(axis=1)) if supported)
         return out
