@@ -1,7 +1,8 @@
 """Autolabel's handover rule (``TrackConfig.handover_scans``) on fresh simulated drives no rule was found or tuned on:
-seeds 9701-9799, never used elsewhere. Prints, per drive, the SemanticKITTI and instant IoU with the rule off and on.
+seeds 9701-9732 (``benchmarks/autolabel.py --seeds fresh``; looked into since round 22). Prints, per drive, the
+SemanticKITTI and instant IoU with the rule off and on.
 
-    python benchmarks/handover_fresh.py [--data data/handover_fresh]
+    python benchmarks/handover_fresh.py [--data data/fresh]
 """
 
 from __future__ import annotations
@@ -13,18 +14,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from autolabel import score_drive  # noqa: E402
+from autolabel import FRESH_SEEDS, score_drive  # noqa: E402
 
 from ros2_mos.offline.autolabel import AutolabelConfig  # noqa: E402
 from ros2_mos.scoring.suite import ensure_sim_sequences  # noqa: E402
 
-FRESH_SEEDS = {"traffic_jam": (9701, 9702, 9703, 9704), "narrow_street": (9711, 9712, 9713),
-               "benchmark": (9721, 9722), "easy": (9731, 9732)}
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path, default=Path("data/handover_fresh"))
+    parser.add_argument("--data", type=Path, default=Path("data/fresh"))
     parser.add_argument("--scans", type=int, default=100)
     args = parser.parse_args()
     on = AutolabelConfig(online_cue=False)

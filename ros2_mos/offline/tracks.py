@@ -290,9 +290,11 @@ class Tracker:
             return {}
         last_scan = np.array([t.last.scan for t in self.tracks])
         first_scan = np.array([t.observations[0].scan for t in self.tracks])
+        last_lo = np.array([t.last.lo[:2] for t in self.tracks])
+        last_hi = np.array([t.last.hi[:2] for t in self.tracks])
         ending = [self._as_it_ended(t) for t in self.tracks]
-        last_lo = np.array([o[0] for o in ending])
-        last_hi = np.array([o[1] for o in ending])
+        end_lo = np.array([o[0] for o in ending])
+        end_hi = np.array([o[1] for o in ending])
         first_lo = np.array([t.observations[0].lo[:2] for t in self.tracks])
         first_hi = np.array([t.observations[0].hi[:2] for t in self.tracks])
         track_len = np.array([len(t.observations) for t in self.tracks])
@@ -314,7 +316,7 @@ class Tracker:
             if first.cut:  # it began cut off an object it passed: that object stood, and stays
                 continue
             near = np.flatnonzero((np.abs(last_scan - first.scan) <= cfg.handover_scans) & (first_scan < first.scan)
-                                  & overlap_from_above(last_lo - margin, last_hi + margin, first.lo[:2] - margin,
+                                  & overlap_from_above(end_lo - margin, end_hi + margin, first.lo[:2] - margin,
                                                        first.hi[:2] + margin))
             size_fits = np.array([self._car_sized_as_it_ended(self.tracks[a], footprint(first))
                                   for a in near.tolist()], bool)
