@@ -362,11 +362,17 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
         # a sign post (0.4 x 0.3 m) whose track ends where a pedestrian's (0.5 x 0.5 m) begins: not a car
         Track(19, [obs(k, 220.0, size=(0.4, 0.3)) for k in range(40)]),
         Track(20, [obs(40 + k, 220.2 + 0.15 * k, far=0.5, size=(0.5, 0.5)) for k in range(20)]),
+        # a car (x 250-254.5) whose points move over to the mover's track scan by scan: its last box, a 0.6 m stub,
+        # lies 2.9 m behind the mover's first box; the boxes of its last 4 observations reach it
+        Track(21, [obs(k, 250.0) for k in range(30)] + [
+            dataclasses.replace(obs(30 + i, 250.0, size=(side, 1.8)), points=points)
+            for i, (side, points) in enumerate(((3.0, 80), (2.0, 60), (1.0, 40), (0.6, 20)))]),
+        Track(22, [obs(33 + k, 253.5 + 0.5 * k, far=0.5, size=(2.0, 1.8)) for k in range(20)]),
     ]
     movers = tracker.movers()
     assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH,
-                      16: SEEN_THROUGH, 18: SEEN_THROUGH, 20: SEEN_THROUGH}
-    assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED, 17: WAITED}
+                      16: SEEN_THROUGH, 18: SEEN_THROUGH, 20: SEEN_THROUGH, 22: SEEN_THROUGH}
+    assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED, 17: WAITED, 21: WAITED}
     for glimpse, handed in ((1.0, False), (2.0, True)):  # 9 times smaller: not it; 4.5 times: it
         tracker.tracks[14] = Track(14, [obs(60 + k, 133.5 + 0.5 * k, far=0.5, size=(glimpse, 0.9)) for k in range(20)])
         assert (13 in tracker.handovers(movers)) == handed
