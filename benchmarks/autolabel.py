@@ -84,6 +84,11 @@ def score_drive(folder: Path, sensor: str, online: bool,
     return out
 
 
+def cells(row: dict[str, float], cols: list[str], digits: int = 1) -> list[str]:
+    """Table cells: IoUs, precision and recall in per cent with ``digits`` decimals; speed as it is; '–' if absent."""
+    return ["–" if c not in row else f"{row[c]:.1f}" if c == "scans/s" else f"{100 * row[c]:.{digits}f}" for c in cols]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=Path("data/autolabel"))
@@ -117,12 +122,9 @@ def main() -> None:
         rows = []
         for _, name, folder in ensure_sim_sequences(root, args.scans, seeds, print, sensor):
             rows.append(score_drive(folder, sensor, not args.no_online, config))
-            cells = [("–" if c not in rows[-1] else f"{rows[-1][c]:.1f}" if c == "scans/s"
-                      else f"{100 * rows[-1][c]:.1f}") for c in cols]
-            print(f"| {sensor} | {name} | " + " | ".join(cells) + " |", flush=True)
-        means = [("–" if c not in rows[0] else f"{np.mean([r[c] for r in rows]):.1f}" if c == "scans/s"
-                  else f"{100 * np.mean([r[c] for r in rows]):.2f}") for c in cols]
-        print(f"| {sensor} | mean of {len(rows)} | " + " | ".join(means) + " |", flush=True)
+            print(f"| {sensor} | {name} | " + " | ".join(cells(rows[-1], cols)) + " |", flush=True)
+        mean = {c: float(np.mean([r[c] for r in rows])) for c in rows[0]}
+        print(f"| {sensor} | mean of {len(rows)} | " + " | ".join(cells(mean, cols, 2)) + " |", flush=True)
 
 
 if __name__ == "__main__":

@@ -278,13 +278,13 @@ class Tracker:
         (or of another such track), began before it, its last box (or, where it ended as a shrinking stub, the boxes of
         its last ``handover_scans`` + 1 observations) overlaps that first box from above (both grown by
         ``handover_margin``) and is car-sized beside it (its last observation, or where that is smaller, the stub of a
-        car moving off, its median observation; ``handover_smaller`` to ``handover_larger`` times its
-        footprint, at most ``handover_max_area``: a pole, or a cluster of parked cars and hedges that a passer-by
+        car moving off, its median observation; ``handover_smaller`` to ``handover_larger`` times its footprint,
+        ``handover_min_area`` to ``handover_max_area``: a pole, or a cluster of parked cars and hedges that a passer-by
         walked past, is not), and no other track but the movers' began in its last box within ``handover_scans`` of its
         end: a parked car that a passer-by merged with ends where the passer-by's track begins, and goes on as another
         track. Fragments of a car moving off (tracks shorter than ``handover_scans``) do not count, nor does the next
-        car of a queue, whose track began long before it took the place, nor a mover whose track began as a part cut
-        off an object for being seen through (a passer-by leaving the kerb or pole it was merged with)."""
+        car of a queue, whose track began long before it took the place, nor a mover whose track began as a part cut off
+        an object for being seen through (a passer-by leaving the kerb or pole it was merged with)."""
         cfg = self.config
         if cfg.handover_scans == 0 or not movers:
             return {}
