@@ -368,11 +368,18 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
             dataclasses.replace(obs(30 + i, 250.0, size=(side, 1.8)), points=points)
             for i, (side, points) in enumerate(((3.0, 80), (2.0, 60), (1.0, 40), (0.6, 20)))]),
         Track(22, [obs(33 + k, 253.5 + 0.5 * k, far=0.5, size=(2.0, 1.8)) for k in range(20)]),
+        # a parked car (x 280-284.5) whose track ends where a hedge (1 x 3 m) begins that is seen through in every
+        # scan and stands still: a mover by its share of seen-through observations, but it never left anywhere
+        Track(23, [obs(k, 280.0) for k in range(61)]),
+        Track(24, [obs(60 + k, 283.5, far=0.5, size=(1.0, 3.0)) for k in range(20)]),
     ]
     movers = tracker.movers()
     assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH,
-                      16: SEEN_THROUGH, 18: SEEN_THROUGH, 20: SEEN_THROUGH, 22: SEEN_THROUGH}
+                      16: SEEN_THROUGH, 18: SEEN_THROUGH, 20: SEEN_THROUGH, 22: SEEN_THROUGH, 24: SEEN_THROUGH}
     assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED, 17: WAITED, 21: WAITED}
+    stay_anywhere = Tracker(dataclasses.replace(tracker.config, handover_travel=0.0))
+    stay_anywhere.tracks = tracker.tracks
+    assert 23 in stay_anywhere.handovers(movers)  # without the travel, the parked car would be the hedge waiting
     for glimpse, handed in ((1.0, False), (2.0, True)):  # 9 times smaller: not it; 4.5 times: it
         tracker.tracks[14] = Track(14, [obs(60 + k, 133.5 + 0.5 * k, far=0.5, size=(glimpse, 0.9)) for k in range(20)])
         assert (13 in tracker.handovers(movers)) == handed

@@ -68,12 +68,17 @@ class TrackConfig:
     #: ... and at least this many: a car, even seen only from behind (poles, signs and pedestrians beside the
     #: real r2's passers-by are not)
     handover_min_area: float = 0.75
+    #: m: a mover whose boxes travelled less than this (:func:`evidence_travel` over all its observations) hands
+    #: nothing over: it cannot have left a place it waited at (a hedge or a kerb seen through now and then is a mover
+    #: by its share of seen-through observations, and stays where it is)
+    handover_travel: float = 1.5
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
 
         check_numbers(self, "autolabel tracks",
-                      zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area"),
+                      zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
+                               "handover_travel"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
@@ -284,7 +289,8 @@ class Tracker:
         end: a parked car that a passer-by merged with ends where the passer-by's track begins, and goes on as another
         track. Fragments of a car moving off (tracks shorter than ``handover_scans``) do not count, nor does the next
         car of a queue, whose track began long before it took the place, nor a mover whose track began as a part cut off
-        an object for being seen through (a passer-by leaving the kerb or pole it was merged with)."""
+        an object for being seen through (a passer-by leaving the kerb or pole it was merged with), nor one whose boxes
+        travelled less than ``handover_travel`` (it left nowhere: a hedge seen through now and then)."""
         cfg = self.config
         if cfg.handover_scans == 0 or not movers:
             return {}
@@ -315,6 +321,8 @@ class Tracker:
             first = b.observations[0]
             if first.cut:  # it began cut off an object it passed: that object stood, and stays
                 continue
+            if b.id not in out and evidence_travel(b.observations, cfg.evidence_travel) < cfg.handover_travel:
+                continue  # it did not leave: nothing waited there (a track it was handed over to stood, by design)
             near = np.flatnonzero((np.abs(last_scan - first.scan) <= cfg.handover_scans) & (first_scan < first.scan)
                                   & overlap_from_above(end_lo - margin, end_hi + margin, first.lo[:2] - margin,
                                                        first.hi[:2] + margin))
