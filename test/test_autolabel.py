@@ -299,6 +299,12 @@ def test_seen_through_observations_lie_apart_only_when_their_boxes_travel():
     left = [obs(k, (10.0, 0.0), (14.5, 1.8), 0.4 if k == 5 else 0.0) for k in range(30)]
     left += [obs(30, (12.0, 0.0), (16.5, 1.8), 0.4), obs(31, (13.0, 0.0), (17.5, 1.8), 0.4)]
     assert evidence_travel([o for o in left if o.far > 0]) == pytest.approx(3.0)
+    # a track thousands of observations long is measured on an even spread of them (and its last): a car that
+    # waited 2,999 scans and left 2 m in the last one still travelled 2 m; the parked car still did not
+    long_wait = [obs(k, (10.0, 0.0), (14.5, 1.8), 0.4) for k in range(2999)]
+    long_wait.append(obs(2999, (12.0, 0.0), (16.5, 1.8), 0.4))
+    assert evidence_travel(long_wait) == pytest.approx(2.0)
+    assert evidence_travel(parked * 100) == pytest.approx(0.0)
 
     config = TrackConfig(min_evidence_travel=1.5, moving_share=0.2)
     tracker = Tracker(config)

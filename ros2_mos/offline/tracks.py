@@ -146,6 +146,11 @@ def box_shift(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray
     return np.where(same_way, np.where(np.abs(d_lo) < np.abs(d_hi), d_lo, d_hi), 0.0)
 
 
+#: :func:`evidence_travel` compares at most about this many observations, evenly spread over the track (and its last):
+#: the pairs of a track thousands of scans long would take gigabytes.
+TRAVEL_MAX_BOXES = 256
+
+
 def evidence_travel(observations: list[Observation], measure: str = "box") -> float:
     """How far apart (m, seen from above) seen-through ``observations`` of one track lie.
 
@@ -155,6 +160,8 @@ def evidence_travel(observations: list[Observation], measure: str = "box") -> fl
     """
     if len(observations) < 2:
         return 0.0
+    if len(observations) > TRAVEL_MAX_BOXES:  # pairs grow with the square: a car followed through a long drive
+        observations = observations[:: -(-len(observations) // TRAVEL_MAX_BOXES)] + [observations[-1]]
     if measure == "centroid":
         centroids = np.array([o.centroid[:2] for o in observations])
         return float(np.hypot(*(centroids.max(axis=0) - centroids.min(axis=0))))
