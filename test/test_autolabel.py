@@ -233,20 +233,26 @@ def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_m
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_THROUGH, Observation, Track, TrackConfig, Tracker
 
-    def track(tid: int, online: list[float], far: float = 0.0) -> Track:
+    def track(tid: int, online: list[float], far: float = 0.0, step: float = 0.2) -> Track:
+        """Observations ``step`` m apart along x (a queue creeping on, 1.8 m over 10 observations)."""
         centre = np.array([10.0, 3.0, 0.8])
-        return Track(tid, [Observation(k, 0, centre, 100, centre - 1, centre + 1, far, far, share)
-                           for k, share in enumerate(online)])
+        at = [centre + [step * k, 0.0, 0.0] for k in range(len(online))]
+        return Track(tid, [Observation(k, 0, c, 100, c - 1, c + 1, far, far, share)
+                           for k, (c, share) in enumerate(zip(at, online))])
 
-    tracker = Tracker(TrackConfig(cue_share=0.6, cue_observations=5, cue_track_share=0.5))
+    tracker = Tracker(TrackConfig(cue_share=0.6, cue_observations=5, cue_track_share=0.5, cue_travel=1.5))
     tracker.tracks = [
         track(0, [0.7] * 5 + [0.0] * 5),  # 5 of 10 at 0.7: a queueing car the online model sees moving
         track(1, [0.7] * 4 + [0.0] * 2),  # 4 hits: too few
         track(2, [0.7] * 5 + [0.0] * 6),  # 5 of 11: under half its observations (a pole flickering)
         track(3, [0.59] * 10),  # under cue_share
         track(4, [0.0] * 10, far=0.5),  # seen through: a mover without the model
+        track(5, [0.9] * 10, step=0.0),  # a parked car beside a narrow street that the model labels moving: it stands
     ]
     assert tracker.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH}
+    anywhere = Tracker(dataclasses.replace(tracker.config, cue_travel=0.0))
+    anywhere.tracks = tracker.tracks
+    assert anywhere.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH, 5: ONLINE_MODEL}
     # the cue's model: the one shipped for the sensor, none for a sensor without one or with the cue off
     assert AutoLabeler(sensor_preset("hdl64")).cue_model.name == "default.onnx"
     assert AutoLabeler(sensor_preset("vlp16")).cue_model.name == "vlp16.onnx"

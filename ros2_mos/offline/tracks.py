@@ -52,6 +52,10 @@ class TrackConfig:
     cue_share: float = 0.6
     cue_observations: int = 5
     cue_track_share: float = 0.5
+    #: m: ... and whose boxes travelled this far (:func:`evidence_travel` over all its observations): queueing cars
+    #: creep on, while the online model's errors stand (it labels parked cars within ~3 m of a narrow street
+    #: moving, all the way along them) (0: no check)
+    cue_travel: float = 1.5
     #: scans: a track that ends within this many scans of where a mover's track begins (their boxes, grown by
     #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
     handover_scans: int = 3
@@ -78,7 +82,7 @@ class TrackConfig:
 
         check_numbers(self, "autolabel tracks",
                       zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
-                               "handover_travel"),
+                               "handover_travel", "cue_travel"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
@@ -255,10 +259,12 @@ class Tracker:
         return travelled or len(evidence) >= cfg.moving_share * len(track.observations)
 
     def labelled_moving(self, track: Track) -> bool:
-        """The online model labelled enough of the track's observations moving (see ``TrackConfig.cue_share``)."""
+        """The online model labelled enough of the track's observations moving (see ``TrackConfig.cue_share``), and
+        its boxes travelled ``cue_travel``."""
         cfg = self.config
         hits = sum(o.online >= cfg.cue_share for o in track.observations)
-        return hits >= cfg.cue_observations and hits >= cfg.cue_track_share * len(track.observations)
+        return hits >= cfg.cue_observations and hits >= cfg.cue_track_share * len(track.observations) and \
+            (cfg.cue_travel == 0 or evidence_travel(track.observations, cfg.evidence_travel) >= cfg.cue_travel)
 
     def _car_sized_as_it_ended(self, track: Track, beside: float) -> bool:
         """Whether ``track``'s last box is ``handover_smaller`` to ``handover_larger`` times the footprint ``beside``
