@@ -156,7 +156,7 @@ TRAVEL_MAX_BOXES = 256
 
 
 def evidence_travel(observations: list[Observation], measure: str = "box") -> float:
-    """How far apart (m, seen from above) seen-through ``observations`` of one track lie.
+    """How far apart (m, seen from above) ``observations`` of one track lie (its seen-through ones, or all of them).
 
     ``measure='box'``: the largest :func:`box_shift` between two of them. A parked car that a passer-by merged with
     for a few scans is seen through there (the passer-by's share), and it grows and shrinks: its centroid slides by
