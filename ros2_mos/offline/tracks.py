@@ -264,7 +264,7 @@ class Tracker:
         cfg = self.config
         hits = sum(o.online >= cfg.cue_share for o in track.observations)
         return hits >= cfg.cue_observations and hits >= cfg.cue_track_share * len(track.observations) and \
-            (cfg.cue_travel == 0 or evidence_travel(track.observations, cfg.evidence_travel) >= cfg.cue_travel)
+            evidence_travel(track.observations, cfg.evidence_travel) >= cfg.cue_travel
 
     def _car_sized_as_it_ended(self, track: Track, beside: float) -> bool:
         """Whether ``track``'s last box is ``handover_smaller`` to ``handover_larger`` times the footprint ``beside``
