@@ -21,7 +21,13 @@ from ros2_mos.core.pipeline import MosPipeline  # noqa: E402
 from ros2_mos.io.labels import to_moving_classes  # noqa: E402
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence  # noqa: E402
 from ros2_mos.offline.drives import FolderDrive  # noqa: E402
-from ros2_mos.training.adapt import AdaptConfig, adapt, narrow_street_drives, plan_adaptation  # noqa: E402
+from ros2_mos.training.adapt import (  # noqa: E402
+    AdaptConfig,
+    adapt,
+    narrow_street_drives,
+    plan_adaptation,
+    recipe_share_drives,
+)
 from ros2_mos.training.trainer import TrainConfig, Trainer, export_checkpoint  # noqa: E402
 
 runner = CliRunner()
@@ -136,3 +142,7 @@ def test_simulated_drives_lie_on_narrow_streets_in_the_share_the_base_recipe_tra
                                                                                   False]
     assert narrow_street_drives(recipe(["a", "b"], ["b"]), 4) == [False, True, False, True]
     assert narrow_street_drives(recipe(["a", "b"], ["a", "b"]), 3) == [True, True, True]
+    # Parked vans: the same rule over sim_parked_vans (1 of 4 trained on: every fourth drive).
+    vans = TrainConfig.from_dict(dict(train_sequences=["a", "b", "c", "d"], valid_sequences=["v"],
+                                      sim_parked_vans=["c", "v"]))
+    assert recipe_share_drives(vans, vans.sim_parked_vans, 8) == [False, False, False, True] * 2

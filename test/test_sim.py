@@ -382,6 +382,42 @@ def test_narrow_streets_are_drawn_after_everything_else_and_bring_parked_cars_cl
     assert all(1.7 <= e <= 3.25 for e in edges) and min(edges) < 2.5
 
 
+def _parked_heights(preset) -> dict[int, tuple[set[int], float]]:
+    """Each parked vehicle's semantic ids and height above its lowest vertex, from the static scene."""
+    soup = SequenceSimulator(2, preset, seed=5, sensor=SMALL, name="00").static.soup
+    out = {}
+    for i in np.unique(soup.inst[soup.inst > 0]).tolist():
+        tris = soup.tris[soup.inst == i]
+        out[i] = (set(np.unique(soup.sem[soup.inst == i]).tolist()), float(np.ptp(tris[..., 2])))
+    return out
+
+
+def test_parked_vans_are_taller_than_cars_static_trucks_and_only_where_asked_for() -> None:
+    from ros2_mos.sim.presets import PARKED_VAN_SHARE, randomized_for_sequence
+
+    base = sim_preset("narrow_street")
+    cars = _parked_heights(base)
+    vans = _parked_heights(replace(base, scene=replace(base.scene, parked_van_prob=1.0)))
+    # Cars 1.4-1.6 m tall (cabin top) as the car shape's draw, vans 1.9-2.8 m and labelled truck (18), both static
+    # ids. (The van draws move the random stream on, so the later blocks differ.)
+    assert len(cars) > 5 and len(vans) > 5
+    assert all(sem == {10} and 1.4 <= h <= 1.6 + 1e-9 for sem, h in cars.values())
+    assert all(sem == {18} and 1.9 <= h <= 2.8 + 1e-9 for sem, h in vans.values())
+    # A share in between parks both.
+    mixed = _parked_heights(replace(base, scene=replace(base.scene, parked_van_prob=0.5)))
+    assert {frozenset(s) for s, _ in mixed.values()} == {frozenset({10}), frozenset({18})}
+    # In training data the share is drawn last, so the other draws (and earlier recipes' data) stay the same.
+    plain = randomized_for_sequence(base, 100, "bw00", narrow_street=True)
+    with_vans = randomized_for_sequence(base, 100, "bw00", narrow_street=True, parked_vans=True)
+    assert plain.scene.parked_van_prob == 0.0 and base.scene.parked_van_prob == 0.0
+    assert PARKED_VAN_SHARE[0] <= with_vans.scene.parked_van_prob <= PARKED_VAN_SHARE[1]
+    assert replace(with_vans.scene, parked_van_prob=0.0) == plain.scene
+    assert (with_vans.effects, with_vans.ego, with_vans.street) == (plain.effects, plain.ego, plain.street)
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ConfigError):
+            replace(base.scene, parked_van_prob=bad)
+
+
 def test_the_narrow_street_preset_is_the_benchmark_street_narrowed_and_lined_with_more_parked_cars() -> None:
     narrow, bench = sim_preset("narrow_street"), sim_preset("benchmark")
     assert narrow.traffic == bench.traffic and narrow.ego == bench.ego and narrow.effects == bench.effects

@@ -420,6 +420,7 @@ def test_training_config_refuses_nonsense_values(data_root, tmp_path):
     for bad in ({"lovasz_weight": -1.0}, {"drop_max": 2.0}, {"lr": float("nan")}, {"weight_decay": float("inf")},
                 {"flip_y": 1.5}, {"max_minutes": 0.0}, {"residual_min_range": 60.0}, {"pose_noise": [0.1]},
                 {"past_offsets": [2, 1], "n_past": 2}, {"image_channels": ["range", "speed"]},
-                {"full_history_only": "yes"}, {"sim_narrow_streets": "bn00"}, {"sim_narrow_streets": [1]}):
+                {"full_history_only": "yes"}, {"sim_narrow_streets": "bn00"}, {"sim_narrow_streets": [1]},
+                {"sim_parked_vans": "bw00"}, {"sim_parked_vans": [None]}):
         with pytest.raises(ConfigError):
             _config(data_root, tmp_path, **bad)

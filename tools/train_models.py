@@ -30,13 +30,13 @@ import yaml
 PRESET_OF_PREFIX = {"b": "benchmark", "t": "traffic_jam", "e": "easy", "s": "slow_traffic"}
 
 
-def _simulate(job: tuple[str, str, int, int, bool, bool, bool, str]) -> str:
+def _simulate(job: tuple[str, str, int, int, bool, bool, bool, bool, str]) -> str:
     from ros2_mos.sim import sim_preset, simulate_sequence
     from ros2_mos.sim.presets import randomized_for_sequence
 
-    root, name, scans, seed, large_trees, beam_layout, narrow_street, sensor = job
+    root, name, scans, seed, large_trees, beam_layout, narrow_street, parked_vans, sensor = job
     preset = randomized_for_sequence(sim_preset(PRESET_OF_PREFIX[name[0]]), seed, name, large_trees, beam_layout,
-                                     narrow_street)
+                                     narrow_street, parked_vans)
     simulate_sequence(root, name, scans, preset, seed, sensor=sensor, convention="instant")
     return name
 
@@ -94,8 +94,9 @@ def main() -> int:
         sensor = base.get("sensor", "hdl64")  # a preset name, or a custom sensor's dict
         sensor = sensor if isinstance(sensor, str) else SensorConfig.from_dict(sensor)
         narrow = {str(n) for n in base.get("sim_narrow_streets", [])}
+        vans = {str(n) for n in base.get("sim_parked_vans", [])}
         jobs = [(args.data, n, args.scans, args.seed, bool(base.get("sim_large_trees", False)),
-                 bool(base.get("sim_beam_layout", True)), n in narrow, sensor) for n in todo]
+                 bool(base.get("sim_beam_layout", True)), n in narrow, n in vans, sensor) for n in todo]
         for name in pool.imap_unordered(_simulate, jobs):
             pass
     print(f"simulated {len(todo)} of {len(names)} sequences x {args.scans} scans in {time.monotonic() - start:.0f} s",

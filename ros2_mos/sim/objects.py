@@ -1,9 +1,9 @@
 """Label ids the simulator writes, and the shapes of its traffic participants.
 
 Shapes are a few boxes each with realistic sizes (car ~4.5 x 1.8 x 1.5 m,
-bus ~11 x 2.5 x 3.2 m, cyclist ~1.8 x 0.6 x 1.75 m, pedestrian ~0.5 x 0.5 x 1.75 m), in the object's
-own frame: x forward, y left, z up from the ground.  Each kind has a static and
-a moving semantic id; which one a point gets depends on whether the object's
+bus ~11 x 2.5 x 3.2 m, parked van ~5.6 x 2.0 x 2.3 m, cyclist ~1.8 x 0.6 x 1.75 m,
+pedestrian ~0.5 x 0.5 x 1.75 m), in the object's own frame: x forward, y left, z up from
+the ground.  Each kind has a static and a moving semantic id; which one a point gets depends on whether the object's
 pose changed since the previous scan.
 """
 
@@ -16,7 +16,7 @@ import numpy as np
 from ros2_mos.sim.geometry import boxes
 
 # SemanticKITTI ids (see ros2_mos.io.labels.SEMANTIC_NAMES).
-CAR, BUS, PERSON, BICYCLIST = 10, 13, 30, 31
+CAR, BUS, TRUCK, PERSON, BICYCLIST = 10, 13, 18, 30, 31
 ROAD, SIDEWALK, BUILDING = 40, 48, 50
 VEGETATION, TRUNK, TERRAIN, POLE = 70, 71, 72, 80
 MOVING_CAR, MOVING_BICYCLIST, MOVING_PERSON, MOVING_BUS = 252, 253, 254, 257
@@ -66,6 +66,20 @@ def bus_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     centers = np.array([[0.0, 0.0, 0.175], [0.0, 0.0, 0.35 + (height - 0.35) / 2]])
     tris = boxes(sizes, centers)
     remission = np.repeat([0.1, rng.uniform(0.2, 0.8)], len(tris) // 2).astype(np.float32)
+    return tris, remission
+
+
+def van_shape(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A van or small lorry (parked only): a tall body with a lower bonnet, ~5.6 x 2.0 x 2.3 m (4.8-6.5 long,
+    1.9-2.8 tall): taller than any car, so a network cannot learn that whatever is tall and close is a passing bus."""
+    length, width, height = rng.uniform(4.8, 6.5), rng.uniform(1.9, 2.1), rng.uniform(1.9, 2.8)
+    bonnet = rng.uniform(0.5, 1.0)
+    sizes = np.array([[length - 0.9, width - 0.2, 0.3], [length - bonnet, width, height - 0.3],
+                      [bonnet, width - 0.1, 0.75]])
+    centers = np.array([[0.0, 0.0, 0.15], [-0.5 * bonnet, 0.0, 0.3 + (height - 0.3) / 2],
+                        [0.5 * (length - bonnet), 0.0, 0.675]])
+    tris = boxes(sizes, centers)
+    remission = np.repeat([0.1, rng.uniform(0.1, 0.9), rng.uniform(0.1, 0.9)], len(tris) // 3).astype(np.float32)
     return tris, remission
 
 

@@ -113,6 +113,9 @@ class SceneConfig:
     pole_spacing: Range = (22.0, 40.0)
     bush_prob: float = 0.3
     parked_prob: float = 0.5
+    # Share of the parked vehicles that are vans (taller than cars; the presets park none: their scenes stay as they
+    # were, and every moving heavy vehicle is a bus).
+    parked_van_prob: float = 0.0
     # RMS height (m) of the ground's long undulations; 0 gives a flat world.
     ground_rms: float = 0.12
 
@@ -120,7 +123,7 @@ class SceneConfig:
         for name in ("building_width", "building_depth", "building_height", "setback", "tree_spacing", "pole_spacing",
                      "tree_scale"):
             _check_range(name, getattr(self, name))
-        for name in ("empty_lot_prob", "tree_prob", "bush_prob", "parked_prob"):
+        for name in ("empty_lot_prob", "tree_prob", "bush_prob", "parked_prob", "parked_van_prob"):
             _check_prob(name, getattr(self, name))
         if self.ground_rms < 0:
             raise ConfigError(f"ground_rms must be >= 0, got {self.ground_rms}")
@@ -333,10 +336,11 @@ def with_effects(preset: SimPreset, **changes: object) -> SimPreset:
 
 
 def randomized_for_sequence(preset: SimPreset, seed: int, name: str, large_trees: bool = False,
-                            beam_layout: bool = True, narrow_street: bool = False) -> SimPreset:
+                            beam_layout: bool = True, narrow_street: bool = False,
+                            parked_vans: bool = False) -> SimPreset:
     """:func:`randomized` with the generator seeded by the simulation seed and the sequence name."""
     rng = np.random.default_rng([int(seed), zlib.crc32(name.encode()), 7])
-    return randomized(preset, rng, large_trees, beam_layout, narrow_street)
+    return randomized(preset, rng, large_trees, beam_layout, narrow_street, parked_vans)
 
 
 #: ``narrow_street``: lanes, bike lane and parking lane drawn from these (m). With the preset's widths (3.5, 1.5,
@@ -345,10 +349,13 @@ def randomized_for_sequence(preset: SimPreset, seed: int, name: str, large_trees
 NARROW_LANE_WIDTH: Range = (2.8, 3.5)
 NARROW_BIKE_LANE_WIDTH: Range = (0.3, 1.5)
 NARROW_PARKING_WIDTH: Range = (2.0, 2.3)
+#: ``parked_vans``: the share of parked vehicles that are vans, drawn from this range (real streets park vans and small
+#: lorries, 1.9-2.8 m tall; the presets park cars only: benchmarks/experiments.md, row 43).
+PARKED_VAN_SHARE: Range = (0.15, 0.4)
 
 
 def randomized(preset: SimPreset, rng: np.random.Generator, large_trees: bool = False,
-               beam_layout: bool = True, narrow_street: bool = False) -> SimPreset:
+               beam_layout: bool = True, narrow_street: bool = False, parked_vans: bool = False) -> SimPreset:
     """A copy of ``preset`` with the sensor's imperfections and the car's mounting drawn at random.
 
     For training data (domain randomisation): real sensors differ in noise, dropout and
@@ -356,7 +363,8 @@ def randomized(preset: SimPreset, rng: np.random.Generator, large_trees: bool = 
     ranges bracket the presets' own values; about half of the sequences are skewed
     (each column cast from the pose at its firing time), as unprocessed driver output is,
     beams sit off the nominal grid (``beam_layout``), trees may be larger and lumpier (``large_trees``), streets
-    narrower, so that parked cars are passed closer (``narrow_street``),
+    narrower, so that parked cars are passed closer (``narrow_street``), some parked vehicles are vans
+    (``parked_vans``),
     foliage is porous (its ranges flicker from
     scan to scan, as real trees' do), and object edges
     return mixed ranges between foreground and background.
@@ -388,4 +396,6 @@ def randomized(preset: SimPreset, rng: np.random.Generator, large_trees: bool = 
         street = replace(street, lane_width=float(u(*NARROW_LANE_WIDTH)),
                          bike_lane_width=float(u(*NARROW_BIKE_LANE_WIDTH)),
                          parking_width=float(u(*NARROW_PARKING_WIDTH)))
+    if parked_vans:  # drawn after the narrow street, for the same reason
+        scene = replace(scene, parked_van_prob=float(u(*PARKED_VAN_SHARE)))
     return replace(preset, effects=effects, ego=ego, scene=scene, street=street)

@@ -215,13 +215,16 @@ class _Builder:
         slot_u = slot_u[rng.random(n_slots) < self.scene.parked_prob]
         heading = float(np.arctan2(direction[1], direction[0]))
         for u in slot_u:
-            tris, remission = ob.car_shape(rng)
+            # Drawn only where vans are parked at all, so that the presets' scenes (no vans) stay as they were.
+            van = self.scene.parked_van_prob > 0 and rng.random() < self.scene.parked_van_prob
+            tris, remission = ob.van_shape(rng) if van else ob.car_shape(rng)
             lateral = 0.5 * st.parking_width + rng.uniform(-0.15, 0.1)
             xy = start + direction * (u + rng.uniform(-0.4, 0.4)) + outward * lateral
             yaw = heading + (np.pi if rng.random() < 0.3 else 0.0) + rng.normal(0.0, 0.03)
             inst = self.next_instance
             self.next_instance += 1
-            self.add(place(tris, xy[0], xy[1], yaw, self.terrain.height(xy[0], xy[1]))[0], ob.CAR, remission, inst)
+            self.add(place(tris, xy[0], xy[1], yaw, self.terrain.height(xy[0], xy[1]))[0], ob.TRUCK if van else ob.CAR,
+                     remission, inst)
             self.parked_ids.append(inst)
             self.parked_xy.append(xy)
 

@@ -254,31 +254,38 @@ def prepare_real(drive, sensor: SensorConfig, work: Path, plan: DrivePlan,
     return names
 
 
-def narrow_street_drives(recipe: TrainConfig, count: int) -> list[bool]:
-    """Which of ``count`` simulated drives lie on narrow streets: the share of the base recipe's training drives
-    that did (``sim_narrow_streets``), spread evenly (drive i is narrow when ``floor((i + 1) * share)`` steps up)."""
+def recipe_share_drives(recipe: TrainConfig, drawn: list[str], count: int) -> list[bool]:
+    """Which of ``count`` simulated drives are drawn as the ``drawn`` sequences of the base recipe were (on narrow
+    streets: ``sim_narrow_streets``; with parked vans: ``sim_parked_vans``): the share of its training drives that
+    were, spread evenly (drive i is when ``floor((i + 1) * share)`` steps up)."""
     train = set(recipe.train_sequences)
-    share = len(train & set(recipe.sim_narrow_streets)) / len(train) if train else 0.0
+    share = len(train & set(drawn)) / len(train) if train else 0.0
     return [int((i + 1) * share) > int(i * share) for i in range(count)]
+
+
+def narrow_street_drives(recipe: TrainConfig, count: int) -> list[bool]:
+    """Which of ``count`` simulated drives lie on narrow streets (:func:`recipe_share_drives`)."""
+    return recipe_share_drives(recipe, recipe.sim_narrow_streets, count)
 
 
 def prepare_simulated(sensor: SensorConfig, work: Path, config: AdaptConfig, recipe: TrainConfig,
                       progress: Callable[[str, int], None]) -> tuple[list[str], list[str]]:
     """Simulated drives of the same sensor (instant labels, randomised sensor effects), drawn as the base's recipe
-    drew its training drives (large trees, beam layout, the share on narrow streets), written once: (to train on,
-    held out)."""
+    drew its training drives (large trees, beam layout, the shares on narrow streets and with parked vans), written
+    once: (to train on, held out)."""
     from ros2_mos.sim import sim_preset, simulate_sequence
     from ros2_mos.sim.presets import randomized_for_sequence
 
     presets = ("benchmark", "traffic_jam", "easy")
     names = [f"sim{i:02d}" for i in range(config.sim_drives)] + [f"simv{i}" for i in range(config.sim_holdout)]
     narrow = narrow_street_drives(recipe, len(names))
+    vans = recipe_share_drives(recipe, recipe.sim_parked_vans, len(names))
     for i, name in enumerate(names):
         if (work / "data" / "sequences" / name / "poses.txt").is_file():
             continue
         preset = randomized_for_sequence(sim_preset(presets[i % len(presets)]), config.sim_seed, name,
                                          large_trees=recipe.sim_large_trees, beam_layout=recipe.sim_beam_layout,
-                                         narrow_street=narrow[i])
+                                         narrow_street=narrow[i], parked_vans=vans[i])
         simulate_sequence(work / "data", name, config.sim_scans, preset, config.sim_seed + i, sensor,
                           progress=lambda n: progress("simulate", n), convention="instant")
     return names[: config.sim_drives], names[config.sim_drives:]

@@ -116,15 +116,18 @@ class TrainConfig:
     # epoch 0). Ignored once out_dir/last.pt exists (the run then resumes as usual).
     init_from: str | None = None
     # Read by tools/train_models.py when it simulates the sequences (ros2_mos.sim.presets.randomized:
-    # large, lumpy trees; beams off the nominal grid; the sequences named here on narrow streets); not by training.
+    # large, lumpy trees; beams off the nominal grid; the sequences named here on narrow streets, or with parked
+    # vans); not by training.
     sim_large_trees: bool = False
     sim_beam_layout: bool = True
     sim_narrow_streets: list[str] = field(default_factory=list)
+    sim_parked_vans: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.sim_narrow_streets, list) or not all(
-                isinstance(n, str) for n in self.sim_narrow_streets):
-            raise ConfigError(f"sim_narrow_streets must be a list of sequence names, got {self.sim_narrow_streets!r}")
+        for name in ("sim_narrow_streets", "sim_parked_vans"):
+            value = getattr(self, name)
+            if not isinstance(value, list) or not all(isinstance(n, str) for n in value):
+                raise ConfigError(f"{name} must be a list of sequence names, got {value!r}")
         if self.optimizer not in ("sgd", "adamw"):
             raise ConfigError(f"optimizer must be 'sgd' or 'adamw', got {self.optimizer!r}")
         if self.epochs < 1 or self.batch_size < 1:
