@@ -28,12 +28,22 @@ def test_the_alternatives_ship():
     assert {m.name for m in MODELS if m.parent.name == "alternatives"} == {"hdl64_narrow_streets.onnx"}
 
 
-def test_an_adapted_model_says_what_it_was_adapted_on():
+@pytest.mark.parametrize("name, base", [("hdl64_kitti.onnx", "default.onnx"),
+                                        ("hdl64_kitti_narrow_streets.onnx", "hdl64_narrow_streets.onnx")])
+def test_an_adapted_model_says_what_it_was_adapted_on(name, base):
     import json
 
-    adapted = REPO / "ros2_mos" / "models" / "adapted" / "hdl64_kitti.onnx"
+    adapted = REPO / "ros2_mos" / "models" / "adapted" / name
     record = json.loads(read_metadata(adapted).extra["adaptation"])
-    assert record["drives"] == ["08b", "r1", "r2"] and record["base"] == "default.onnx"
+    assert record["drives"] == ["08b", "r1", "r2"] and record["base"] == base
+    # The base it names ships, for the same sensor.
+    shipped = {m.name: m for m in MODELS}
+    assert read_metadata(shipped[base]).sensor.name == read_metadata(adapted).sensor.name
+
+
+def test_the_adapted_models_ship():
+    assert {m.name for m in MODELS if m.parent.name == "adapted"} == {"hdl64_kitti.onnx",
+                                                                      "hdl64_kitti_narrow_streets.onnx"}
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda p: p.stem)
