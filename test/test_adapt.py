@@ -24,7 +24,6 @@ from ros2_mos.offline.drives import FolderDrive  # noqa: E402
 from ros2_mos.training.adapt import (  # noqa: E402
     AdaptConfig,
     adapt,
-    narrow_street_drives,
     plan_adaptation,
     recipe_share_drives,
 )
@@ -134,14 +133,17 @@ def test_simulated_drives_lie_on_narrow_streets_in_the_share_the_base_recipe_tra
     def recipe(train, narrow):
         return TrainConfig.from_dict(dict(train_sequences=train, valid_sequences=["v"], sim_narrow_streets=narrow))
 
+    def narrow(config, count):
+        return recipe_share_drives(config, config.sim_narrow_streets, count)
+
     # None narrow: none; 3 of 7 trained on (0.43; "v" and "x" are not trained on): drives 2 and 4 of 6 (floor of
     # 1.29 and 2.14 step up); half: every other drive, the second first; all: all.
-    assert narrow_street_drives(recipe(["a", "b"], []), 4) == [False] * 4
+    assert narrow(recipe(["a", "b"], []), 4) == [False] * 4
     seven = ["a", "b", "c", "d", "e", "f", "g"]
-    assert narrow_street_drives(recipe(seven, ["a", "b", "c", "v", "x"]), 6) == [False, False, True, False, True,
+    assert narrow(recipe(seven, ["a", "b", "c", "v", "x"]), 6) == [False, False, True, False, True,
                                                                                   False]
-    assert narrow_street_drives(recipe(["a", "b"], ["b"]), 4) == [False, True, False, True]
-    assert narrow_street_drives(recipe(["a", "b"], ["a", "b"]), 3) == [True, True, True]
+    assert narrow(recipe(["a", "b"], ["b"]), 4) == [False, True, False, True]
+    assert narrow(recipe(["a", "b"], ["a", "b"]), 3) == [True, True, True]
     # Parked vans: the same rule over sim_parked_vans (1 of 4 trained on: every fourth drive).
     vans = TrainConfig.from_dict(dict(train_sequences=["a", "b", "c", "d"], valid_sequences=["v"],
                                       sim_parked_vans=["c", "v"]))

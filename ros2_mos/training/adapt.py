@@ -263,11 +263,6 @@ def recipe_share_drives(recipe: TrainConfig, drawn: list[str], count: int) -> li
     return [int((i + 1) * share) > int(i * share) for i in range(count)]
 
 
-def narrow_street_drives(recipe: TrainConfig, count: int) -> list[bool]:
-    """Which of ``count`` simulated drives lie on narrow streets (:func:`recipe_share_drives`)."""
-    return recipe_share_drives(recipe, recipe.sim_narrow_streets, count)
-
-
 def prepare_simulated(sensor: SensorConfig, work: Path, config: AdaptConfig, recipe: TrainConfig,
                       progress: Callable[[str, int], None]) -> tuple[list[str], list[str]]:
     """Simulated drives of the same sensor (instant labels, randomised sensor effects), drawn as the base's recipe
@@ -278,7 +273,7 @@ def prepare_simulated(sensor: SensorConfig, work: Path, config: AdaptConfig, rec
 
     presets = ("benchmark", "traffic_jam", "easy")
     names = [f"sim{i:02d}" for i in range(config.sim_drives)] + [f"simv{i}" for i in range(config.sim_holdout)]
-    narrow = narrow_street_drives(recipe, len(names))
+    narrow = recipe_share_drives(recipe, recipe.sim_narrow_streets, len(names))
     vans = recipe_share_drives(recipe, recipe.sim_parked_vans, len(names))
     for i, name in enumerate(names):
         if (work / "data" / "sequences" / name / "poses.txt").is_file():
