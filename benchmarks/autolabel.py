@@ -9,6 +9,7 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --seeds unseen3        # round 23's check; two drives looked into since
     python benchmarks/autolabel.py --seeds unseen4        # round 24's check of round 23's rules (one looked at)
     python benchmarks/autolabel.py --seeds validation --no-online --set instant_speed=0.6 --set instant_span=3
+    python benchmarks/autolabel.py --seeds validation --no-online --set objects.drive_ground_range=0
 
 Drives are simulated into --data (reused); KISS-ICP poses for both. Prints a Markdown table: per drive the moving
 IoU of autolabel and of the online model under SemanticKITTI's and the instant convention, autolabel's precision
@@ -18,6 +19,7 @@ and recall (semantickitti), and its speed.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import tempfile
 import time
 from pathlib import Path
@@ -108,17 +110,27 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="an AutolabelConfig setting other than its default (a number or a word)")
     args = parser.parse_args()
-    changes = {}
+    changes: dict[str, object] = {}
+    nested: dict[str, dict[str, object]] = {"objects": {}, "tracks": {}}
     for item in args.set:
         name, _, value = item.partition("=")
-        kind = type(getattr(AutolabelConfig(), name))
+        part, dot, field_name = name.rpartition(".")  # objects.NAME / tracks.NAME: ObjectConfig / TrackConfig
+        if dot and part not in nested:
+            parser.error(f"--set {name}: only objects.NAME and tracks.NAME are nested")
+        owner = getattr(AutolabelConfig(), part) if dot else AutolabelConfig()
+        if not hasattr(owner, field_name):
+            parser.error(f"--set {name}: no such setting")
+        kind = type(getattr(owner, field_name))
         if kind is bool:  # bool("false") is True
             if value.lower() not in ("true", "false"):
                 parser.error(f"--set {name}: true or false, got {value!r}")
-            changes[name] = value.lower() == "true"
+            converted: object = value.lower() == "true"
         else:
-            changes[name] = kind(value)
-    config = AutolabelConfig(**changes)
+            converted = kind(value)
+        (nested[part] if dot else changes)[field_name] = converted
+    config = AutolabelConfig(**changes, **{part: dataclasses.replace(getattr(AutolabelConfig(), part), **values)
+                                           for part, values in nested.items() if values})
+    changes.update({f"{part}.{k}": v for part, values in nested.items() for k, v in values.items()})
     seeds = SEED_SETS[args.seeds]
     print(f"autolabel benchmark, {time.strftime('%Y-%m-%d')}: {args.seeds} drives, {args.scans} scans, "
           f"KISS-ICP poses, settings {changes or 'default'}\n")

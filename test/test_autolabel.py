@@ -16,7 +16,7 @@ from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.io.labels import instance_ids, semantic_ids
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, scan_labels
-from ros2_mos.offline.drives import FolderDrive
+from ros2_mos.offline.drives import FolderDrive, _scan
 from ros2_mos.offline.objects import (
     ObjectConfig,
     VehicleReturns,
@@ -658,3 +658,14 @@ def test_every_stored_point_gets_a_label_also_non_finite_and_zero_ones(tmp_path)
         labels = read_label(out / "sequences" / "scene" / "predictions" / f"{k:06d}.label", n)
         if k in (0, 5):
             assert (labels[:3] == 9).all() and (labels[-3:] == 9).all()
+
+
+def test_a_drive_scan_keeps_the_finite_points_with_a_range_and_says_where_they_sat():
+    points = np.array([[1, 0, 0], [np.nan, 0, 0], [0, 0, 0], [0, np.inf, 1], [2e19, 0, 0], [0, 3, 4]], np.float32)
+    intensity = np.arange(6, dtype=np.float32)
+    scan = _scan(7, 0.5, points, intensity)
+    assert scan.kept.tolist() == [0, 5] and scan.stored == 6  # NaN, zero range, inf, overflowing range dropped
+    assert scan.points.tolist() == [[1, 0, 0], [0, 3, 4]] and scan.intensity.tolist() == [0, 5]
+    assert scan.points.flags.c_contiguous and scan.points.dtype == np.float32
+    clean = _scan(0, 0.0, points[[0, 5]], intensity[[0, 5]])  # nothing to drop: every point, in order
+    assert clean.kept.tolist() == [0, 1] and clean.points.tolist() == [[1, 0, 0], [0, 3, 4]]

@@ -35,9 +35,15 @@ class Drive(Protocol):
 
 
 def _scan(index: int, stamp: float, points: np.ndarray, intensity: np.ndarray) -> DriveScan:
-    """The finite points with a range > 0, and where they sit among the stored ones."""
+    """The finite points with a range > 0, and where they sit among the stored ones (a point whose squared range
+    overflows float32, 1.8e19 m, is not finite either)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        keep = np.flatnonzero(np.isfinite(points).all(axis=1) & (np.einsum("ij,ij->i", points, points) > 0))
+        squared = np.einsum("ij,ij->i", points, points)  # NaN or inf where a coordinate is
+        finite = (squared > 0) & (squared < np.inf)
+    if finite.all():  # the usual case: no fancy-index copy
+        return DriveScan(index, stamp, np.ascontiguousarray(points, np.float32),
+                         np.ascontiguousarray(intensity, np.float32), np.arange(len(points)), len(points))
+    keep = np.flatnonzero(finite)
     return DriveScan(index, stamp, np.ascontiguousarray(points[keep], np.float32),
                      np.ascontiguousarray(intensity[keep], np.float32), keep, len(points))
 

