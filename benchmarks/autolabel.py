@@ -8,6 +8,7 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --seeds unseen2        # scored, never looked into (rounds 22-23)
     python benchmarks/autolabel.py --seeds unseen3        # round 23's check; two drives looked into since
     python benchmarks/autolabel.py --seeds unseen4        # round 24's check of round 23's rules (one looked at)
+    python benchmarks/autolabel.py --seeds unseen5        # round 25's check of round 25's rule (HDL-64E, VLP-16)
     python benchmarks/autolabel.py --seeds validation --no-online --set instant_speed=0.6 --set instant_span=3
     python benchmarks/autolabel.py --seeds validation --no-online --set objects.drive_ground_range=0
 
@@ -59,8 +60,10 @@ UNSEEN3_SEEDS = {"traffic_jam": (9951, 9952, 9953, 9954), "narrow_street": (9961
 #: Round 23's rules scored once on these (92.31 / 91.75); narrow_street-10013 then looked at (eval --by-instance).
 UNSEEN4_SEEDS = {"traffic_jam": (10001, 10002, 10003, 10004), "narrow_street": (10011, 10012, 10013),
                  "benchmark": (10021, 10022), "easy": (10031, 10032)}
+UNSEEN5_SEEDS = {"traffic_jam": (10101, 10102, 10103, 10104), "narrow_street": (10111, 10112, 10113),
+                 "benchmark": (10121, 10122), "easy": (10131, 10132)}
 SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_SEEDS, "unseen": UNSEEN_SEEDS,
-             "unseen2": UNSEEN2_SEEDS, "unseen3": UNSEEN3_SEEDS, "unseen4": UNSEEN4_SEEDS}
+             "unseen2": UNSEEN2_SEEDS, "unseen3": UNSEEN3_SEEDS, "unseen4": UNSEEN4_SEEDS, "unseen5": UNSEEN5_SEEDS}
 
 
 def score_drive(folder: Path, sensor: str, online: bool,
