@@ -85,6 +85,16 @@ def test_voxel_clusters_link_26_neighbours_and_split_at_a_free_voxel():
     assert len(set(ids[:3])) == 1 and len(set(ids[3:])) == 1 and ids[0] != ids[3]
 
 
+def test_voxel_clusters_in_groups_never_join_across_groups():
+    # Two touching pairs of points; as one set the four make one cluster, in groups (0, 0, 1, 1) two; within a group
+    # a free voxel still splits.
+    pts = np.array([[0.0, 0, 0], [0.5, 0, 0], [0.2, 0.1, 0], [0.7, 0.1, 0], [5.0, 0, 0]], np.float32)
+    assert len(set(voxel_clusters(pts[:4], 0.4).tolist())) == 1
+    grouped = voxel_clusters(pts, 0.4, groups=np.array([0, 0, 1, 1, 1]))
+    assert grouped[0] == grouped[1] and grouped[2] == grouped[3] and grouped[0] != grouped[2]
+    assert grouped[4] not in (grouped[0], grouped[2])
+
+
 def test_neighbourhood_min_takes_rows_pm1_and_columns_pm2_with_wrap():
     img = np.full((3, 8), 10.0, np.float32)
     img[1, 0] = 2.0

@@ -107,8 +107,7 @@ class AutolabelConfig:
     #: An observation of a mover that moves now (the instant rules: seen through by a near scan, or its box
     #: travelling) has moved, so it is moving under SemanticKITTI's convention too, though its box overlaps no
     #: seen-through one: a car driving ahead at the sensor's speed hides its next place, so its last scans have no
-    #: scan that sees through where it was (26 VLP-16 validation drives +1.20 / +1.42, HDL-64E +0.20 / +0.24,
-    #: semantickitti / instant, no drive lower; benchmarks/autolabel.md)
+    #: scan that sees through where it was (measured: benchmarks/autolabel.md, round 25)
     ever_from_motion: bool = True
 
     def __post_init__(self) -> None:
@@ -353,7 +352,7 @@ class AutoLabeler:
         np.maximum(far, near, out=far)
         sums = np.stack([np.bincount(obj, world[:, i], n_objects) for i in range(3)], axis=1)
         centroids = sums / counts[:, None]
-        # float32 like the points: ufunc.at casting float32 into float64 takes numpy's slow path (35x, 2 s a drive)
+        # float32 like the points: ufunc.at casting float32 into float64 takes numpy's slow path
         lo = np.full((n_objects, 3), np.inf, np.float32)
         hi = np.full((n_objects, 3), -np.inf, np.float32)
         for i in range(3):
