@@ -457,13 +457,13 @@ def split_seen_apart(world: np.ndarray, obj: np.ndarray, seen: np.ndarray, n_obj
     if len(candidates) == 0:
         return out, n_objects
     # Every candidate's parts in one call (an object's voxels never join another's), grouped by object.
-    points = np.flatnonzero(np.isin(obj, candidates))
-    points = points[np.argsort(obj[points], kind="stable")]
-    sub = voxel_clusters(world[points], voxel, groups=obj[points])
-    part_of_point = (np.bincount(sub, seen[points]) / np.bincount(sub) >= SPLIT_PART_SEEN)[sub]
-    starts = np.searchsorted(obj[points], candidates)
-    for j, start, end in zip(candidates.tolist(), starts.tolist(), [*starts[1:].tolist(), len(points)]):
-        idx, part = points[start:end], part_of_point[start:end]
+    members = np.flatnonzero(np.isin(obj, candidates))  # indices of the candidates' points, object by object
+    members = members[np.argsort(obj[members], kind="stable")]
+    sub = voxel_clusters(world[members], voxel, groups=obj[members])
+    part_of_member = (np.bincount(sub, seen[members]) / np.bincount(sub) >= SPLIT_PART_SEEN)[sub]
+    starts = np.searchsorted(obj[members], candidates)
+    for j, start, end in zip(candidates.tolist(), starts.tolist(), [*starts[1:].tolist(), len(members)]):
+        idx, part = members[start:end], part_of_member[start:end]
         a, b = idx[part], idx[~part]
         if len(a) < min_points or len(b) < min_points or seen[b].mean() > SPLIT_REST_SEEN:
             continue
