@@ -394,11 +394,28 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
         # scan and stands still: a mover by its share of seen-through observations, but it never left anywhere
         Track(23, [obs(k, 280.0) for k in range(61)]),
         Track(24, [obs(60 + k, 283.5, far=0.5, size=(1.0, 3.0)) for k in range(20)]),
+        # a car that queued behind the sensor (x 310-314.5, 8.1 m2) pulls away seen end-on: its first glimpse is three
+        # slivers (0.3 x 1.8 m, 0.9 m2 each: 9 times smaller), three tracks; together 3.3 x 1.8 m (1.4 times smaller)
+        Track(25, [obs(k, 310.0) for k in range(60)]),
+        *[Track(26 + i, [obs(60 + k, 310.0 + 1.5 * i + 0.5 * k, far=0.5, size=(0.3, 1.8)) for k in range(20)])
+          for i in range(3)],
+        # a car that waited (x 340-344.5) whose mover's boxes travel only 1.33 m (< handover_travel), but it ends
+        # apart from where the car waited: it left
+        Track(29, [obs(k, 340.0) for k in range(60)]),
+        Track(30, [obs(60 + k, 344.0 + 0.07 * k, far=0.5, size=(1.0, 1.8)) for k in range(20)]),
+        # a car that waited (x 370-374.5) and, as it moves off, a sliver of it (0.2 x 1.7 m) becomes a track of its own
+        # for six scans where it stood: not a car taking its place (track 10 is one)
+        Track(31, [obs(k, 370.0) for k in range(60)]),
+        Track(32, [obs(57 + k, 372.0, size=(0.2, 1.7)) for k in range(6)]),
+        Track(33, [obs(60 + k, 370.5 + 0.5 * k, far=0.5, size=(2.0, 1.8)) for k in range(20)]),
     ]
     movers = tracker.movers()
     assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH,
-                      16: SEEN_THROUGH, 18: SEEN_THROUGH, 20: SEEN_THROUGH, 22: SEEN_THROUGH, 24: SEEN_THROUGH}
-    assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED, 17: WAITED, 21: WAITED}
+                      16: SEEN_THROUGH, 18: SEEN_THROUGH, 20: SEEN_THROUGH, 22: SEEN_THROUGH, 24: SEEN_THROUGH,
+                      26: SEEN_THROUGH, 27: SEEN_THROUGH, 28: SEEN_THROUGH, 30: SEEN_THROUGH, 33: SEEN_THROUGH}
+    assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED, 17: WAITED, 21: WAITED,
+                                         25: WAITED, 29: WAITED, 31: WAITED}
+    assert 25 not in tracker.handovers({26: SEEN_THROUGH})  # one sliver alone is 9 times smaller than the car
     stay_anywhere = Tracker(dataclasses.replace(tracker.config, handover_travel=0.0))
     stay_anywhere.tracks = tracker.tracks
     assert 23 in stay_anywhere.handovers(movers)  # without the travel, the parked car would be the hedge waiting

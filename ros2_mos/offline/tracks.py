@@ -15,6 +15,7 @@ often enough is still a mover when the online model labelled it moving in enough
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -320,13 +321,19 @@ class Tracker:
         margin = cfg.handover_margin
         out: dict[int, str] = {}
 
+        @functools.cache
+        def median_area(a: int) -> float:
+            return float(np.median([footprint(o) for o in self.tracks[a].observations]))
+
         def left_empty(a: int) -> bool:
-            """No other track (but movers, and fragments shorter than ``handover_scans``) began where track ``a``
-            ended, as it ended: its place was not taken over by the object it was."""
+            """No other track (but movers, fragments shorter than ``handover_scans``, and slivers under
+            ``handover_smaller`` of its median footprint) began where track ``a`` ended, as it ended: its place was not
+            taken over by the object it was."""
             c = np.flatnonzero((np.abs(first_scan - last_scan[a]) <= cfg.handover_scans) & (first_scan > first_scan[a])
                                & (track_len >= cfg.handover_scans)
                                & overlap_from_above(first_lo, first_hi, last_lo[a], last_hi[a]))
-            return all(int(t) in movers or int(t) in out or t == a for t in c)
+            least = cfg.handover_smaller * median_area(a)
+            return all(int(t) in movers or int(t) in out or t == a or median_area(int(t)) < least for t in c)
 
         todo = list(movers)
         while todo:
@@ -334,18 +341,39 @@ class Tracker:
             first = b.observations[0]
             if first.cut:  # it began cut off an object it passed: that object stood, and stays
                 continue
-            if b.id not in out and evidence_travel(b.observations, cfg.evidence_travel) < cfg.handover_travel:
-                continue  # it did not leave: nothing waited there (a track it was handed over to stood, by design)
+            travelled = b.id in out or evidence_travel(b.observations, cfg.evidence_travel) >= cfg.handover_travel
             near = np.flatnonzero((np.abs(last_scan - first.scan) <= cfg.handover_scans) & (first_scan < first.scan)
                                   & overlap_from_above(end_lo - margin, end_hi + margin, first.lo[:2] - margin,
                                                        first.hi[:2] + margin))
-            size_fits = np.array([self._car_sized_as_it_ended(self.tracks[a], footprint(first))
-                                  for a in near.tolist()], bool)
-            for a in near[size_fits].tolist():
-                if a not in movers and a not in out and left_empty(a):
+            for a in near.tolist():
+                if a in movers or a in out or not (travelled or self._left(b, end_lo[a], end_hi[a])):
+                    continue  # it did not leave: nothing waited there (a track it was handed over to stood, by design)
+                glimpse = self._glimpse(first, end_lo[a], end_hi[a], movers, out)
+                if self._car_sized_as_it_ended(self.tracks[a], glimpse) and left_empty(a):
                     out[a] = WAITED
                     todo.append(a)
         return out
+
+    def _glimpse(self, first: Observation, lo: np.ndarray, hi: np.ndarray, movers: dict[int, str],
+                 waited: dict[int, str]) -> float:
+        """The footprint of the first glimpse of a car moving off from the top-view box (lo, hi) as the mover's track
+        beginning with ``first`` begins: the box around ``first`` and the first observations of the other movers'
+        tracks that begin in the same scan there (boxes grown by ``handover_margin``). A car seen end-on as it pulls
+        away (one that queued behind or ahead of the sensor) breaks into slivers, each a track of its own."""
+        m = self.config.handover_margin
+        firsts = [first] + [t.observations[0] for t in self.tracks if t.observations[0].scan == first.scan
+                            and t.observations[0] is not first and (t.id in movers or t.id in waited)
+                            and overlap_from_above(t.observations[0].lo[:2] - m, t.observations[0].hi[:2] + m,
+                                                   lo - m, hi + m)]
+        side = np.maximum(np.max([o.hi[:2] for o in firsts], axis=0) - np.min([o.lo[:2] for o in firsts], axis=0),
+                          MIN_FOOTPRINT_SIDE)
+        return float(side[0] * side[1])
+
+    def _left(self, mover: Track, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """Whether ``mover``'s track ended apart from the top-view box (lo, hi) it began in (grown by
+        ``handover_margin``): it left that place, though its boxes, the slivers of a car seen end-on, barely travel."""
+        m = self.config.handover_margin
+        return not bool(overlap_from_above(mover.last.lo[:2] - m, mover.last.hi[:2] + m, lo - m, hi + m))
 
     def movers(self) -> dict[int, str]:
         """{track id: the evidence that makes it a mover}: 'seen through', else 'online model'."""
