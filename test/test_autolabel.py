@@ -189,7 +189,8 @@ def test_config_is_checked():
 
     for bad in ({"near_offsets": (0,)}, {"instant_seen_through": 0.0}, {"instant_seen_through": float("nan")},
                 {"instant_seen_through": 1.5}, {"instant_speed": float("inf")}, {"support_margin": -0.1},
-                {"odometry_margin": float("nan")}, {"odometry_margin_share": -0.01}):
+                {"odometry_margin": float("nan")}, {"odometry_margin_share": -0.01}, {"odometry_prefer": "b"},
+                {"instant_motion": "speed"}):
         with pytest.raises(ConfigError):
             AutolabelConfig(**bad)
     for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
@@ -575,7 +576,7 @@ def test_kiss_icp_runs_backwards_too_over_clouds_it_keeps_only_while_it_needs_th
     from ros2_mos.offline.autolabel import progress_steps
 
     drive = FolderDrive(jam / "sequences" / "00")
-    config = AutolabelConfig(online_cue=False)
+    config = AutolabelConfig(online_cue=False, odometry_prefer="forward")
     runs = {}
     for stood in (True, False):  # the sensor stood and moved off, or not: the backward pass runs, or not
         monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps, stood=stood: stood)
@@ -593,11 +594,17 @@ def test_kiss_icp_runs_backwards_too_over_clouds_it_keeps_only_while_it_needs_th
     assert runs[True].odometry_followed == "f"  # run, and the passes agree on this drive
     assert runs[False].odometry_followed == ""  # not run
     np.testing.assert_allclose(runs[True].poses, runs[False].poses)  # the forward pass's poses either way
+    monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps: True)
+    work = tmp_path / "prefer"
+    work.mkdir()
+    backward = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(online_cue=False)).label(drive, work)
+    assert backward.odometry_followed == "b"  # by default the backward pass, where neither is clearly farther
+    assert np.abs(backward.poses[:, :3, 3] - runs[True].poses[:, :3, 3]).max() < 0.3  # they agree here
     one_pass = AutolabelConfig(online_cue=False, backward_odometry=False)
     assert progress_steps(30, one_pass) == 3 * 30
     # where the backward pass is taken, the command says so
     monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps: True)
-    monkeypatch.setattr(autolabel_module, "farther_pass", lambda forward, backward, *margins: (backward, "b"))
+    monkeypatch.setattr(autolabel_module, "farther_pass", lambda forward, backward, *margins, **prefer: (backward, "b"))
     out = runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(tmp_path / "o")])
     assert out.exit_code == 0 and "KISS-ICP run backwards" in out.output, out.output
 

@@ -58,6 +58,20 @@ def test_the_forward_pass_stays_unless_the_backward_one_is_clearly_farther():
     assert farther_pass(long_forward, _along_x([1.0] * 99 + [3.5]), 0.75, 0.02)[1] == "b"
 
 
+def test_where_neither_pass_is_clearly_farther_the_preferred_one_is_taken():
+    # forwards, KISS-ICP lags 0.8 m as the sensor moves off (scans 5-10) and catches up by scan 15: both paths end
+    # equally long, and the backward pass, which followed that moment as a stop, is preferred
+    forward = _along_x([0.0] * 5 + [0.6] * 5 + [1.4] * 5 + [1.0] * 5)
+    backward = _along_x([0.0] * 5 + [0.76] * 5 + [1.24] * 5 + [1.0] * 5, _turned(30.0, (4.0, -2.0, 1.0)))
+    poses, which = farther_pass(forward, backward, margin=0.75, margin_share=0.02, prefer="b")
+    assert which == "b"
+    np.testing.assert_allclose(poses[10, 0, 3], 3.8, atol=1e-9)  # the forward pass put scan 10 at 3.0 m
+    assert farther_pass(forward, backward, 0.75, 0.02, prefer="f")[1] == "f"
+    # a forward pass clearly farther is taken whatever the preference (backwards, a stop was a start it lagged at)
+    assert farther_pass(_along_x([1.0] * 20), _along_x([1.0] * 10 + [0.6] * 5 + [1.0] * 5), 0.75, 0.02,
+                        prefer="b")[1] == "f"
+
+
 def test_bad_input_is_refused():
     poses = _along_x([1.0] * 4)
     with pytest.raises(ConfigError, match="one shape"):
@@ -67,6 +81,8 @@ def test_bad_input_is_refused():
     for margin, share in ((float("nan"), 0.02), (0.75, float("inf")), (-1.0, 0.02)):
         with pytest.raises(ConfigError, match="finite margins"):
             farther_pass(poses, poses, margin, share)
+    with pytest.raises(ConfigError, match="prefer"):
+        farther_pass(poses, poses, 0.75, 0.02, prefer="backward")
 
 
 def test_a_backward_pass_is_wanted_only_where_the_sensor_stood_and_moved_off():

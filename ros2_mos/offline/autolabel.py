@@ -3,7 +3,8 @@
 The steps (:meth:`AutoLabeler.label`), each a stage built once:
 
 1. **Poses**: KISS-ICP over the drive (or the drive's own poses); where the sensor stood and moved off, KISS-ICP
-   backwards too, and the pass that did not fall behind (:mod:`~ros2_mos.offline.trajectory`). The same pass finds
+   backwards too, and the pass that did not fall behind (the backward one where neither travelled clearly farther:
+   :mod:`~ros2_mos.offline.trajectory`). The same pass finds
    the returns of the vehicle carrying the sensor (:class:`~ros2_mos.offline.objects.VehicleReturns`).
 2. **Objects and evidence**, in a window sliding over the drive: each scan's ground is removed and the rest cut into
    object-sized segments (:mod:`~ros2_mos.offline.objects`); each object's points are checked against the range
@@ -65,6 +66,8 @@ SENSOR_CHECK_EVERY = 10
 #: starts with the velocity the first pass found at scan RESTART_FROM (:meth:`AutoLabeler._restart`).
 RESTART_FROM = 8
 RESTART_SCANS = 14
+#: The KISS-ICP pass ``AutolabelConfig.odometry_prefer`` names, as :func:`farther_pass` names it.
+ODOMETRY_PASSES = {"forward": "f", "backward": "b"}
 #: How the instant convention measures an object's motion between observations: the box edges that moved together
 #: (:func:`box_shift`), or the centroid (slides while the sensor passes a standing object).
 INSTANT_MOTION = ("box", "centroid")
@@ -101,6 +104,10 @@ class AutolabelConfig:
     backward_odometry: bool = True
     odometry_margin: float = 0.75
     odometry_margin_share: float = 0.02
+    #: ... and where neither pass travelled clearly farther, this one ('forward' or 'backward'): KISS-ICP lags up to
+    #: 0.9 m for a few seconds as the sensor moves off in a queue and then catches up, so its path ends about as
+    #: long, while backwards that moment is a stop, which it follows (:mod:`~ros2_mos.offline.trajectory`)
+    odometry_prefer: str = "backward"
     #: The online model (the one shipped for the sensor) labels each scan too, with autolabel's poses: a track that
     #: visibility does not make a mover is one when the model labels it moving often enough (``TrackConfig.cue_share``).
     online_cue: bool = True
@@ -114,6 +121,9 @@ class AutolabelConfig:
         offsets = (*self.near_offsets, *self.far_offsets)
         if not offsets or 0 in offsets:
             raise ConfigError("autolabel: offsets must be non-zero scan offsets")
+        if self.odometry_prefer not in ODOMETRY_PASSES:
+            raise ConfigError(f"autolabel: odometry_prefer must be one of {', '.join(ODOMETRY_PASSES)}, got "
+                              f"{self.odometry_prefer!r}")
         if self.instant_motion not in INSTANT_MOTION:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
@@ -254,7 +264,8 @@ class AutoLabeler:
         if starts_from_rest(forward, stamps):  # else there is nothing for KISS-ICP to fall behind at
             backward = self._backward(workdir, len(forward), progress)
             poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
-                                           self.config.odometry_margin_share)
+                                           self.config.odometry_margin_share,
+                                           prefer=ODOMETRY_PASSES[self.config.odometry_prefer])
         else:
             progress("backward", len(forward))
         for path in workdir.glob("kiss*.npy"):  # the clouds kept for the backward pass
