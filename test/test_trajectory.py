@@ -96,3 +96,5 @@ def test_a_backward_pass_is_wanted_only_where_the_sensor_stood_and_moved_off():
     # speeding up slowly after the stand (0.05 m/s, then 3 m/s) still counts
     assert starts_from_rest(_along_x([0.0] * 15 + [0.005] * 10 + [0.3] * 35), stamps)
     assert not starts_from_rest(_along_x([0.0] * 3), stamps[:4])  # too short to tell
+    # stands 1.2 s, creeps off at 0.35 m/s, slows to 0.2 m/s, then drives: the creep does not restart the stand
+    assert starts_from_rest(_along_x([0.0] * 12 + [0.035] * 6 + [0.02] * 6 + [0.3] * 36), stamps)

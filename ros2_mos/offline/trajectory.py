@@ -41,10 +41,12 @@ def starts_from_rest(poses: np.ndarray, stamps: np.ndarray, rest_speed: float = 
         return False
     speed = (np.linalg.norm(poses[step:, :3, 3] - poses[:-step, :3, 3], axis=1)
              / np.maximum(stamps[step:] - stamps[:-step], 1e-6))
-    rest: list[float] = []  # [start, end] of the last run of standing speeds; kept while the sensor speeds up
+    # [first, last] stamp of standing speeds since the sensor last moved: creeping speeds between the two bounds
+    # neither end nor restart it (a queue creeps off at 0.2-0.9 m/s before it drives)
+    rest: list[float] = []
     for k, v in enumerate(speed):
         if v < rest_speed:
-            rest = [rest[0] if rest and speed[k - 1] < rest_speed else stamps[k], stamps[k]]
+            rest = [rest[0] if rest else stamps[k], stamps[k]]
         elif v > moving_speed:
             if rest and rest[1] - rest[0] >= rest_seconds:
                 return True
