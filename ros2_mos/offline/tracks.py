@@ -335,6 +335,9 @@ class Tracker:
             least = cfg.handover_smaller * median_area(a)
             return all(int(t) in movers or int(t) in out or t == a or median_area(int(t)) < least for t in c)
 
+        beginning: dict[int, list[Track]] = {}  # first scan -> the tracks that begin there
+        for t in self.tracks:
+            beginning.setdefault(t.observations[0].scan, []).append(t)
         todo = list(movers)
         while todo:
             b = self.tracks[todo.pop()]
@@ -348,21 +351,22 @@ class Tracker:
             for a in near.tolist():
                 if a in movers or a in out or not (travelled or self._left(b, end_lo[a], end_hi[a])):
                     continue  # it did not leave: nothing waited there (a track it was handed over to stood, by design)
-                glimpse = self._glimpse(first, end_lo[a], end_hi[a], movers, out)
+                glimpse = self._glimpse(first, end_lo[a], end_hi[a], beginning.get(first.scan, []), movers, out)
                 if self._car_sized_as_it_ended(self.tracks[a], glimpse) and left_empty(a):
                     out[a] = WAITED
                     todo.append(a)
         return out
 
-    def _glimpse(self, first: Observation, lo: np.ndarray, hi: np.ndarray, movers: dict[int, str],
-                 waited: dict[int, str]) -> float:
+    def _glimpse(self, first: Observation, lo: np.ndarray, hi: np.ndarray, beginning: list[Track],
+                 movers: dict[int, str], waited: dict[int, str]) -> float:
         """The footprint of the first glimpse of a car moving off from the top-view box (lo, hi) as the mover's track
         beginning with ``first`` begins: the box around ``first`` and the first observations of the other movers'
-        tracks that begin in the same scan there (boxes grown by ``handover_margin``). A car seen end-on as it pulls
-        away (one that queued behind or ahead of the sensor) breaks into slivers, each a track of its own."""
+        tracks that begin in the same scan (``beginning``: the tracks that do) there (boxes grown by
+        ``handover_margin``). A car seen end-on as it pulls away (one that queued behind or ahead of the sensor)
+        breaks into slivers, each a track of its own."""
         m = self.config.handover_margin
-        firsts = [first] + [t.observations[0] for t in self.tracks if t.observations[0].scan == first.scan
-                            and t.observations[0] is not first and (t.id in movers or t.id in waited)
+        firsts = [first] + [t.observations[0] for t in beginning
+                            if t.observations[0] is not first and (t.id in movers or t.id in waited)
                             and overlap_from_above(t.observations[0].lo[:2] - m, t.observations[0].hi[:2] + m,
                                                    lo - m, hi + m)]
         side = np.maximum(np.max([o.hi[:2] for o in firsts], axis=0) - np.min([o.lo[:2] for o in firsts], axis=0),
