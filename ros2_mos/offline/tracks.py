@@ -191,6 +191,11 @@ def footprint(obs: Observation) -> float:
     return float(side[0] * side[1])
 
 
+def median_footprint(track: Track) -> float:
+    """The :func:`footprint` of a track's median observation."""
+    return float(np.median([footprint(o) for o in track.observations]))
+
+
 class Tracker:
     """Greedy nearest-neighbour association of each scan's observations to the live tracks."""
 
@@ -276,7 +281,7 @@ class Tracker:
         high = min(cfg.handover_larger * beside, cfg.handover_max_area)
         area = footprint(track.last)
         if area < low:
-            area = float(np.median([footprint(o) for o in track.observations]))
+            area = median_footprint(track)
         return low <= area <= high
 
     def _as_it_ended(self, track: Track) -> tuple[np.ndarray, np.ndarray]:
@@ -323,7 +328,7 @@ class Tracker:
 
         @functools.cache
         def median_area(a: int) -> float:
-            return float(np.median([footprint(o) for o in self.tracks[a].observations]))
+            return median_footprint(self.tracks[a])
 
         def left_empty(a: int) -> bool:
             """No other track (but movers, fragments shorter than ``handover_scans``, and slivers under
