@@ -349,12 +349,15 @@ class Tracker:
             first = b.observations[0]
             if first.cut:  # it began cut off an object it passed: that object stood, and stays
                 continue
-            travelled = b.id in out or evidence_travel(b.observations, cfg.evidence_travel) >= cfg.handover_travel
             near = np.flatnonzero((np.abs(last_scan - first.scan) <= cfg.handover_scans) & (first_scan < first.scan)
                                   & overlap_from_above(end_lo - margin, end_hi + margin, first.lo[:2] - margin,
                                                        first.hi[:2] + margin))
-            for a in near.tolist():
-                if a in movers or a in out or not (travelled or self._left(b, end_lo[a], end_hi[a])):
+            near = [a for a in near.tolist() if a not in movers and a not in out]
+            if not near:  # most movers: nothing ended where they began (and their travel need not be measured)
+                continue
+            travelled = b.id in out or evidence_travel(b.observations, cfg.evidence_travel) >= cfg.handover_travel
+            for a in near:
+                if not (travelled or self._left(b, end_lo[a], end_hi[a])):
                     continue  # it did not leave: nothing waited there (a track it was handed over to stood, by design)
                 glimpse = self._glimpse(first, end_lo[a], end_hi[a], beginning.get(first.scan, []), movers, out)
                 if self._car_sized_as_it_ended(self.tracks[a], glimpse) and left_empty(a):
