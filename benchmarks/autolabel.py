@@ -9,7 +9,7 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --seeds unseen3        # round 23's check; two drives looked into since
     python benchmarks/autolabel.py --seeds unseen4        # round 24's check of round 23's rules (one looked at)
     python benchmarks/autolabel.py --seeds unseen5        # round 25's check of round 25's rule (HDL-64E, VLP-16)
-    python benchmarks/autolabel.py --seeds unseen6        # round 26's check of round 26's handover
+    python benchmarks/autolabel.py --seeds unseen6        # round 26's check of round 26's handover and poses
     python benchmarks/autolabel.py --seeds validation --no-online --set instant_speed=0.6 --set instant_span=3
     python benchmarks/autolabel.py --seeds validation --no-online --set objects.attach_cell=0.6
 
@@ -65,7 +65,7 @@ UNSEEN4_SEEDS = {"traffic_jam": (10001, 10002, 10003, 10004), "narrow_street": (
 #: benchmark-10121, benchmark-10122) and changed the handover with two: no longer unseen.
 UNSEEN5_SEEDS = {"traffic_jam": (10101, 10102, 10103, 10104), "narrow_street": (10111, 10112, 10113),
                  "benchmark": (10121, 10122), "easy": (10131, 10132)}
-#: Round 26's check of round 26's handover.
+#: Round 26's check of round 26's handover and pose choice (narrow_street-10213 looked at for its poses).
 UNSEEN6_SEEDS = {"traffic_jam": (10201, 10202, 10203, 10204), "narrow_street": (10211, 10212, 10213),
                  "benchmark": (10221, 10222), "easy": (10231, 10232)}
 SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_SEEDS, "unseen": UNSEEN_SEEDS,
