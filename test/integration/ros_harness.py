@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, ShutdownException
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from scenes import street_sequence  # noqa: E402  (test/ is on sys.path: see test/conftest.py)
@@ -60,7 +60,11 @@ class Harness:
         self.executor = MultiThreadedExecutor(num_threads=2, context=context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.peer)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        # Spin in short steps that a test can pause: destroying a subscription while the executor
+        # builds its wait set kills the spinning thread (rclpy InvalidHandle on the QoS event handler).
+        self._spinning = threading.Lock()
+        self._closing = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
         self._wait(lambda: self.pub.get_subscription_count() > 0, 5.0)
         # The node builds clouds and images only for matched subscribers: wait until all are matched.
@@ -70,6 +74,19 @@ class Harness:
         """The peer's subscription to the output ``key`` (its messages go to ``received[key]``)."""
         qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
         return self.peer.create_subscription(OUTPUTS[key], f"/mos/{key}", lambda msg: self._on(key, msg), qos)
+
+    def unsubscribe(self, key: str) -> None:
+        """Destroy the peer's subscription to the output ``key`` between two steps of the executor."""
+        with self._spinning:
+            self.peer.destroy_subscription(self.subscriptions.pop(key))
+
+    def _spin(self) -> None:
+        while not self._closing.is_set():
+            with self._spinning:
+                try:
+                    self.executor.spin_once(timeout_sec=0.05)
+                except (ShutdownException, ExternalShutdownException):
+                    return
 
     def wait_matched(self, keys: Any, matched: bool = True, timeout: float = 5.0) -> bool:
         """Wait until the node's publishers of ``keys`` have (or no longer have) a subscriber."""
@@ -114,8 +131,9 @@ class Harness:
             return {k: next(x for x in self.received[k] if m.stamp_ns(x.header.stamp) == stamp) for k in OUTPUTS}
 
     def close(self) -> None:
-        self.executor.shutdown()
+        self._closing.set()
         self.thread.join(timeout=5)
+        self.executor.shutdown()
         self.node.destroy_node()
         self.peer.destroy_node()
 

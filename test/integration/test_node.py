@@ -224,7 +224,7 @@ def test_clouds_and_images_are_built_only_while_someone_subscribes(harness, sequ
     h = harness
     unwatched = ("static_points", "mask")
     for key in unwatched:
-        h.peer.destroy_subscription(h.subscriptions.pop(key))
+        h.unsubscribe(key)
     try:
         assert h.wait_matched(unwatched, matched=False)
         assert h.node._wanted().isdisjoint(unwatched)
