@@ -121,12 +121,12 @@ def main() -> None:
                         help="an AutolabelConfig setting other than its default (a number or a word)")
     args = parser.parse_args()
     changes: dict[str, object] = {}
-    nested: dict[str, dict[str, object]] = {"objects": {}, "tracks": {}}
+    nested: dict[str, dict[str, object]] = {"objects": {}, "tracks": {}, "pairs": {}}
     for item in args.set:
         name, _, value = item.partition("=")
-        part, dot, field_name = name.rpartition(".")  # objects.NAME / tracks.NAME: ObjectConfig / TrackConfig
+        part, dot, field_name = name.rpartition(".")  # objects. / tracks. / pairs.NAME: nested
         if dot and part not in nested:
-            parser.error(f"--set {name}: only objects.NAME and tracks.NAME are nested")
+            parser.error(f"--set {name}: only objects.NAME, tracks.NAME and pairs.NAME are nested")
         owner = getattr(AutolabelConfig(), part) if dot else AutolabelConfig()
         if not hasattr(owner, field_name):
             parser.error(f"--set {name}: no such setting")

@@ -9,9 +9,10 @@ The steps (:meth:`AutoLabeler.label`), each a stage built once:
 2. **Objects and evidence**, in a window sliding over the drive: each scan's ground is removed and the rest cut into
    object-sized segments (:mod:`~ros2_mos.offline.objects`); each object's points are checked against the range
    images of scans before and after it (:mod:`~ros2_mos.offline.visibility`): where those scans saw through the
-   place the object occupies now, it moved. The online model (the one shipped for the sensor) labels each scan
-   too, with these poses: a cue for what is never seen through. Per scan only the points' object ids go to disk, so
-   memory stays bounded by the window, not by the drive.
+   place the object occupies now, it moved. Scans 5 or more apart are seen from their pose registered to the scan
+   (:mod:`~ros2_mos.offline.viewpoints`): KISS-ICP's drifts over seconds. The online model (the one shipped for
+   the sensor) labels each scan too, with these poses: a cue for what is never seen through. Per scan only the
+   points' object ids go to disk, so memory stays bounded by the window, not by the drive.
 3. **Tracks** through the drive (:mod:`~ros2_mos.offline.tracks`): a track with enough seen-through observations is a
    mover; so is one that the online model labels moving often enough (cars queueing in a jam).
 4. **Labels**: under SemanticKITTI's convention every point of a mover is moving in every scan in which it is seen
@@ -52,6 +53,7 @@ from ros2_mos.offline.tracks import (
     overlap_from_above,
 )
 from ros2_mos.offline.trajectory import farther_pass, starts_from_rest
+from ros2_mos.offline.viewpoints import PairRegistration, PairRegistrationConfig
 from ros2_mos.offline.visibility import SeenScan
 
 if TYPE_CHECKING:
@@ -80,6 +82,8 @@ CUE_MOVING_NOW = 0.5
 class AutolabelConfig:
     objects: ObjectConfig = field(default_factory=ObjectConfig)
     tracks: TrackConfig = field(default_factory=TrackConfig)
+    #: Scans far apart registered to each other for visibility (:mod:`~ros2_mos.offline.viewpoints`)
+    pairs: PairRegistrationConfig = field(default_factory=PairRegistrationConfig)
     #: Scans this far away (before or after) are checked for motion now (the instant convention) ...
     near_offsets: tuple[int, ...] = (-5, -2, 2, 5)
     #: ... and these too for motion at any time (SemanticKITTI's).
@@ -298,6 +302,8 @@ class AutoLabeler:
         loaded = 0
         online = self._online_model()
         skipped = 0
+        pairs = PairRegistration(self.config.pairs)
+        offsets = (*self.config.near_offsets, *self.config.far_offsets)
         try:
             for k in range(n):
                 while loaded < min(n, k + window + 1):  # the window ahead of scan k
@@ -309,13 +315,17 @@ class AutoLabeler:
                     del seen[old]
                 index, points, intensity = pending.popleft()
                 assert index == k
+                pairs.forget_before(k - window)
+                ahead = {i: cloud for i, cloud, _ in pending}
+                pairs.register(k, points, poses[k], [(k + o, ahead[k + o], poses[k + o]) for o in offsets
+                                                     if o > 0 and pairs.wants(o) and k + o in ahead])
                 labelled = None
                 if online is not None:
                     try:
                         labelled = online.process(points, intensity, float(stamps[k]), pose=poses[k]).labels
                     except ScanError:  # a scan the online model refuses gets no cue; visibility still judges it
                         skipped += 1
-                observations = self._observe(k, points, poses[k], vehicle, seen, labelled)
+                observations = self._observe(k, points, poses[k], vehicle, seen, pairs, labelled)
                 tracker.add_scan(k, float(stamps[k]), last_stamp, observations[1])
                 last_stamp = float(stamps[k])
                 np.save(workdir / f"{k:06d}.npy", observations[0])
@@ -335,15 +345,17 @@ class AutoLabeler:
         return MosPipeline(MosConfig(model=str(self.cue_model), sensor=self.sensor))
 
     def _observe(self, k: int, points: np.ndarray, pose: np.ndarray, vehicle: np.ndarray, seen: dict[int, SeenScan],
-                 labelled: np.ndarray | None = None) -> tuple[np.ndarray, list[Observation]]:
-        """Scan k's objects (per point ids; none on the ``vehicle``'s cells) and one observation per object
-        (``labelled``: the online model's moving labels of the scan's points, for the cue)."""
+                 pairs: PairRegistration, labelled: np.ndarray | None = None) -> tuple[np.ndarray, list[Observation]]:
+        """Scan k's objects (per point ids; none on the ``vehicle``'s cells) and one observation per object, each
+        scan of the window seen from the pose ``pairs`` refined for it where it did (``labelled``: the online
+        model's moving labels of the scan's points, for the cue)."""
         cfg = self.config
         found = find_objects(points, cfg.objects, vehicle)
         on_object = np.flatnonzero((found.point_object >= 0) & ~found.attached)
         obj = found.point_object[on_object]
         world = np.ascontiguousarray(transform_columns(points[on_object], pose).T)
-        through = {o: seen[k + o].seen_through(world) for o in (*cfg.near_offsets, *cfg.far_offsets)
+        through = {o: seen[k + o].seen_through(world, pairs.viewpoint_pose(k, pose, k + o))
+                   for o in (*cfg.near_offsets, *cfg.far_offsets)
                    if k + o in seen}  # per offset, per point on an object: seen through by that scan
         seen_any = np.logical_or.reduce(list(through.values())) if through else np.zeros(len(obj), bool)
         n_objects = found.n_objects

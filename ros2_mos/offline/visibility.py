@@ -42,9 +42,11 @@ class SeenScan:
         self.min_range = neighbourhood_min(project_range(points, sensor))
         self.sensor = sensor
 
-    def seen_through(self, world_points: np.ndarray) -> np.ndarray:
-        """Per (N, 3) world point: did this scan see beyond it (the place was empty)?"""
-        x, y, z = transform_columns(world_points, self.inverse)
+    def seen_through(self, world_points: np.ndarray, pose: np.ndarray | None = None) -> np.ndarray:
+        """Per (N, 3) world point: did this scan see beyond it (the place was empty)? Seen from ``pose`` (4x4
+        world) instead of the scan's own where given (a pose refined for the points' scan)."""
+        inverse = self.inverse if pose is None else np.linalg.inv(pose)
+        x, y, z = transform_columns(world_points, inverse)
         pixels = pixel_index_columns(x, y, z, self.sensor)
         measured = self.min_range[pixels.v, pixels.u]
         margin = np.maximum(FREE_MARGIN_M, FREE_MARGIN_RELATIVE * pixels.range)

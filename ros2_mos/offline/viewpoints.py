@@ -1,0 +1,128 @@
+"""The pose of one scan seen from another: KISS-ICP's relative pose refined by registering the two scans.
+
+Visibility (:mod:`~ros2_mos.offline.visibility`) asks whether scan j saw through the place a point of scan k lies
+at. It needs scan j's pose relative to scan k, and KISS-ICP's drifts over seconds: on the simulated VLP-32C drive
+benchmark-9102 (a terrain wave, which KISS-ICP follows with a pitch error of up to 4 degrees) its poses of scans 40
+apart are 0.34 m off on average and 1.1 m at worst, and parked cars 7 m away are "seen through" by scans 20-40
+away. Scans ``from_offset`` or more apart are therefore registered once more, one against the other: scan j's
+points (thinned to one per ``voxel``) against a voxel map of all of scan k's, starting from KISS-ICP's relative
+pose (KISS-ICP's own point-to-point ICP with its robust kernel). The refined pose serves the pair both ways (scan
+k seen from j, and j from k). A refinement that moves the pose farther than ``max_shift`` metres or ``max_turn``
+degrees, or that has too few points to hold it, is refused: KISS-ICP's pose stays. Registering only the points on
+no object (so that a car alongside cannot pull one scan onto the other) was measured and is worse
+(``benchmarks/autolabel.md``, round 28).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ros2_mos.core.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class PairRegistrationConfig:
+    #: Scans this many apart or more are registered to each other (0: none; scans nearer than this keep KISS-ICP's
+    #: relative pose, which drifts little over a few scans).
+    from_offset: int = 5
+    voxel: float = 1.0  # m: one point per voxel of the registered scan, and the map's voxel
+    max_correspondence: float = 2.0  # m: farther pairs of points are not matched
+    kernel: float = 0.3  # m: the robust (Geman-McClure) kernel's scale
+    iterations: int = 20
+    convergence: float = 1e-4
+    max_shift: float = 1.5  # m
+    max_turn: float = 5.0  # degrees
+    min_points: int = 100  # thinned points of either scan below which a pair is not registered
+    #: points a voxel of the map keeps (as in KISS-ICP's own map; 5 is faster and lost on simulated jams:
+    #: benchmarks/autolabel.md, round 28)
+    map_points: int = 20
+
+    def __post_init__(self) -> None:
+        for name in ("voxel", "max_correspondence", "kernel", "convergence", "max_shift", "max_turn"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"pair registration: {name} must be a finite number > 0, got {value!r}")
+        for name in ("from_offset", "iterations", "min_points", "map_points"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < (1 if name in ("iterations", "map_points") else 0):
+                raise ConfigError(f"pair registration: {name} must be a whole number >= "
+                                  f"{1 if name in ('iterations', 'map_points') else 0}, got {value!r}")
+
+
+def pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """Metres and degrees between two 4x4 poses."""
+    delta = np.linalg.inv(a) @ b
+    cos = np.clip((np.trace(delta[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.linalg.norm(delta[:3, 3])), math.degrees(math.acos(cos))
+
+
+class PairRegistration:
+    """Refined relative poses of the scan pairs a sliding window asks for; built once per drive."""
+
+    def __init__(self, config: PairRegistrationConfig = PairRegistrationConfig()) -> None:
+        from kiss_icp.registration import Registration
+
+        self.config = config
+        self._registration = Registration(max_num_iterations=config.iterations,
+                                          convergence_criterion=config.convergence)
+        #: (a, b) with a < b: scan b's pose in scan a's frame
+        self._relative: dict[tuple[int, int], np.ndarray] = {}
+        self._thinned: dict[int, np.ndarray] = {}  # scan -> its points thinned to one per voxel
+        self.refused = 0
+        self.registered = 0
+
+    def wants(self, offset: int) -> bool:
+        """Whether a pair this many scans apart is registered."""
+        return self.config.from_offset > 0 and abs(offset) >= self.config.from_offset
+
+    def register(self, a: int, points_a: np.ndarray, pose_a: np.ndarray,
+                 later: list[tuple[int, np.ndarray, np.ndarray]]) -> None:
+        """Register each later scan (index, sensor-frame (N, 3) points, KISS-ICP world pose) against scan ``a``, in
+        one voxel map of scan a's points; keep each pair's relative pose (KISS-ICP's where the refinement is
+        refused)."""
+        from kiss_icp.mapping import VoxelHashMap
+        from kiss_icp.voxelization import voxel_down_sample
+
+        cfg = self.config
+        self._thinned.pop(a, None)  # scans are registered in order: scan a is never a later scan again
+        if not later:
+            return
+        voxel_map = None
+        if len(points_a) >= cfg.min_points:
+            voxel_map = VoxelHashMap(voxel_size=cfg.voxel, max_distance=1e9, max_points_per_voxel=cfg.map_points)
+            voxel_map.add_points(np.asarray(points_a, np.float64))
+        inverse_a = np.linalg.inv(pose_a)
+        for b, points_b, pose_b in later:
+            if b <= a:
+                raise ConfigError(f"pair registration: scan {b} is not later than scan {a}")
+            start = inverse_a @ pose_b
+            relative = start
+            if b not in self._thinned:  # scan b is registered against up to len(offsets) earlier scans
+                self._thinned[b] = voxel_down_sample(np.asarray(points_b, np.float64), cfg.voxel)
+            source = self._thinned[b]
+            if voxel_map is not None and len(source) >= cfg.min_points:
+                refined = self._registration.align_points_to_map(source, voxel_map, start, cfg.max_correspondence,
+                                                                 cfg.kernel)
+                shift, turn = pose_change(start, refined)
+                if np.all(np.isfinite(refined)) and shift <= cfg.max_shift and turn <= cfg.max_turn:
+                    relative = refined
+            self.registered += relative is not start
+            self.refused += relative is start
+            self._relative[(a, b)] = relative
+
+    def viewpoint_pose(self, k: int, pose_k: np.ndarray, j: int) -> np.ndarray | None:
+        """Scan j's world pose as a viewpoint of scan k's points (scan k at ``pose_k``), or None where the pair was
+        not registered."""
+        if j > k:
+            relative = self._relative.get((k, j))
+            return None if relative is None else pose_k @ relative
+        relative = self._relative.get((j, k))
+        return None if relative is None else pose_k @ np.linalg.inv(relative)
+
+    def forget_before(self, k: int) -> None:
+        """Drop the pairs whose first scan is before ``k`` (out of the window)."""
+        for pair in [p for p in self._relative if p[0] < k]:
+            del self._relative[pair]
