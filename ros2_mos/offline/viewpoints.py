@@ -20,7 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ros2_mos.apps.kitti_metrics import rotation_angles
 from ros2_mos.core.errors import ConfigError
+from ros2_mos.offline.objects import check_numbers
 
 
 @dataclass(frozen=True)
@@ -41,22 +43,17 @@ class PairRegistrationConfig:
     map_points: int = 20
 
     def __post_init__(self) -> None:
-        for name in ("voxel", "max_correspondence", "kernel", "convergence", "max_shift", "max_turn"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"pair registration: {name} must be a finite number > 0, got {value!r}")
         for name in ("from_offset", "iterations", "min_points", "map_points"):
             value = getattr(self, name)
-            if not isinstance(value, int) or value < (1 if name in ("iterations", "map_points") else 0):
-                raise ConfigError(f"pair registration: {name} must be a whole number >= "
-                                  f"{1 if name in ('iterations', 'map_points') else 0}, got {value!r}")
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise ConfigError(f"pair registration: {name} must be a whole number, got {value!r}")
+        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points"))
 
 
 def pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """Metres and degrees between two 4x4 poses."""
     delta = np.linalg.inv(a) @ b
-    cos = np.clip((np.trace(delta[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.linalg.norm(delta[:3, 3])), math.degrees(math.acos(cos))
+    return float(np.linalg.norm(delta[:3, 3])), math.degrees(float(rotation_angles(delta[:3, :3])))
 
 
 class PairRegistration:
