@@ -11,7 +11,7 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --seeds unseen5        # round 25's check of round 25's rule (HDL-64E, VLP-16)
     python benchmarks/autolabel.py --seeds unseen6        # round 26's check of round 26's handover and poses
     python benchmarks/autolabel.py --seeds validation --no-online --set instant_speed=0.6 --set instant_span=3
-    python benchmarks/autolabel.py --seeds validation --no-online --set objects.attach_cell=0.6
+    python benchmarks/autolabel.py --seeds validation --no-online --set objects.attach_distance=0.4
 
 Drives are simulated into --data (reused); KISS-ICP poses for both. Prints a Markdown table: per drive the moving
 IoU of autolabel and of the online model under SemanticKITTI's and the instant convention, autolabel's precision

@@ -12,7 +12,9 @@ from drive_scenes import SENSOR, WALL, Mover, write_drive
 from typer.testing import CliRunner
 
 from ros2_mos.cli import app
+from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.core.projection import pixel_index
 from ros2_mos.io.labels import instance_ids, semantic_ids
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, scan_labels
@@ -20,6 +22,9 @@ from ros2_mos.offline.drives import FolderDrive, _scan
 from ros2_mos.offline.objects import (
     ObjectConfig,
     VehicleReturns,
+    attach_below,
+    attach_to_nearest,
+    blind_floor,
     find_objects,
     local_ground,
     on_vehicle,
@@ -93,6 +98,95 @@ def test_voxel_clusters_in_groups_never_join_across_groups():
     grouped = voxel_clusters(pts, 0.4, groups=np.array([0, 0, 1, 1, 1]))
     assert grouped[0] == grouped[1] and grouped[2] == grouped[3] and grouped[0] != grouped[2]
     assert grouped[4] not in (grouped[0], grouped[2])
+
+
+def test_loose_points_go_to_the_nearest_object_within_reach_seen_from_above():
+    # Two objects (ids 0 and 1) whose nearest points lie at x = 0 and x = 2; low points beside them.
+    points = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [2.0, 0.0, 1.0], [3.0, 0.0, 1.0],
+                       [0.55, 0.0, 0.2],   # 0.55 m from object 0, 1.45 m from object 1: object 0
+                       [1.45, 0.0, 0.2],   # 0.55 m from object 1: object 1
+                       [0.0, 0.95, 0.2],   # 0.95 m from object 0: too far
+                       [0.0, -0.45, 0.05],  # close, but 0.05 m above the ground: ground
+                       [-1.0, 0.6, 0.25]], np.float32)  # 0.6 m beside object 0's other point
+    low = np.flatnonzero((points[:, 2] > 0.08) & (points[:, 2] <= 0.3))  # as find_objects picks them
+    point_object = np.array([0, 0, 1, 1, -1, -1, -1, -1, -1], np.int32)
+    attached = attach_to_nearest(points, low, point_object, 0.7)
+    assert point_object.tolist() == [0, 0, 1, 1, 0, 1, -1, -1, 0]
+    assert attached.tolist() == [False] * 4 + [True, True, False, False, True]
+    # With a 0.4 m reach, none is close enough.
+    point_object = np.array([0, 0, 1, 1, -1, -1, -1, -1, -1], np.int32)
+    attach_to_nearest(points, low, point_object, 0.4)
+    assert point_object.tolist() == [0, 0, 1, 1, -1, -1, -1, -1, -1]
+
+
+def test_a_ring_piece_beside_an_object_joins_it_and_one_apart_does_not():
+    rng = np.random.default_rng(1)
+    ground = np.column_stack([rng.uniform(-30, 30, 4000), rng.uniform(-30, 30, 4000), np.zeros(4000)])
+    car = np.column_stack([rng.uniform(5, 9.5, 800), rng.uniform(2, 3.8, 800), rng.uniform(0.3, 1.5, 800)])
+    # 5 returns (under min_points), 0.15 m beside the car seen from above and 0.8 m over its top: no voxel joins them
+    beside = np.column_stack([np.linspace(6, 7, 5), np.full(5, 3.95), np.full(5, 2.3)])
+    apart = np.column_stack([np.linspace(6, 7, 5), np.full(5, 6.0), np.full(5, 1.0)])  # 2.2 m away
+    pts = np.vstack([ground, car, beside, apart]).astype(np.float32)
+    found = find_objects(pts)
+    car_id = found.point_object[4000]
+    assert car_id >= 0 and (found.point_object[4800:4805] == car_id).all() and found.attached[4800:4805].all()
+    assert (found.point_object[4805:] == -1).all()
+    alone = find_objects(pts, ObjectConfig(attach_fragments=False))
+    assert (alone.point_object[4800:] == -1).all()
+    assert found.counts[car_id] == alone.counts[car_id] == 800  # joined by label, not counted as the object's own
+
+
+def test_a_column_under_an_object_joins_it_ring_by_ring_and_the_road_at_its_foot_does_not():
+    sensor = SensorConfig("column8", 8, 360, 3.0, -25.0, 0.0, 80.0)  # rows 3.5 degrees apart, row v centred at
+    pitch = np.radians(3.0 - 3.5 * (np.arange(8) + 0.5))  # 3 - 3.5 (v + 0.5) degrees
+
+    def at(row: int, x: float) -> list[float]:
+        return [x, 0.0, x * np.tan(pitch[row])]
+
+    def ground(row: int) -> list[float]:
+        return at(row, 1.73 / np.tan(-pitch[row]))
+
+    # A car's side 5 m ahead: its ring in row 3 is on the object; rows 4 and 5 lie under it (in a sparse sensor's
+    # blind spot, the local ground); the road meets it in row 6 (4.81 m, 0.27 m below row 5 and 0.19 m nearer:
+    # 55 degrees) and row 7 (4.03 m).
+    points = np.array([at(3, 5.0), at(4, 5.0), at(5, 5.0), ground(6), ground(7)], np.float32)
+    assert pixel_index(points, sensor).v.tolist() == [3, 4, 5, 6, 7]
+
+    def joined(steep: float, which: np.ndarray) -> list[int]:
+        point_object = np.array([0] + [-1] * (len(which) - 1), np.int32)
+        attach_below(which, np.arange(1, len(which)), point_object, sensor, steep)
+        return point_object.tolist()
+
+    assert joined(70.0, points) == [0, 0, 0, -1, -1]  # the side ring by ring; 55 degrees is not steep enough
+    # At 45 degrees the road in row 6 would be steep enough, but it continues the road below it (row 7): not joined.
+    assert joined(45.0, points) == [0, 0, 0, -1, -1]
+    assert joined(45.0, points[:4]) == [0, 0, 0, 0]  # nothing below it: it joins
+
+
+def test_in_the_blind_spot_the_ground_is_the_plane_fitted_beyond_it():
+    # A VLP-16 1.73 m up on a road rising 5 % along x: its lowest beam (-15 degrees) meets the road 6.5 m out; a car
+    # 3 m to its side shows it a band 0.8-0.95 m up, and nothing lower nearby: its lowest ring is the local ground.
+    sensor = SensorConfig("vlp16", 16, 1024, 15.0, -15.0, 0.0, 100.0)
+    rng = np.random.default_rng(2)
+    r, a = rng.uniform(6.6, 25.0, 6000), rng.uniform(-np.pi, np.pi, 6000)
+    x, y = r * np.cos(a), r * np.sin(a)
+    road = np.column_stack([x, y, -1.73 + 0.05 * x])
+    cx, cy = rng.uniform(-1.0, 1.0, 400), rng.uniform(3.0, 3.4, 400)
+    car = np.column_stack([cx, cy, -1.73 + 0.05 * cx + rng.uniform(0.8, 0.95, 400)])
+    points = np.vstack([road, car]).astype(np.float32)
+    ground = local_ground(points, 1.0, 2, 1.5)
+    assert (points[6000:, 2] - ground[6000:]).min() < 0.05  # without the plane: the car's lowest ring is ground
+    floor = blind_floor(points, ground, sensor, 6.0)
+    # The road's plane, rising with x, as low as the local ground is on a slope (its 5 m window's lowest point)
+    off = floor[6000:] - (-1.73 + 0.05 * cx)
+    assert off.max() < 0.02 and off.min() > -0.2
+    beyond = r > 7.5  # beyond the blind radius (6.5-7 m, from the local ground's median): as it was
+    assert (floor[:6000][beyond] == ground[:6000][beyond]).all()
+    config = ObjectConfig(ego_radius=0.0, attach_steep=0.0)
+    with_plane = find_objects(points, config, sensor=sensor)  # blind_floor on by default
+    without = find_objects(points, dataclasses.replace(config, blind_floor=False), sensor=sensor)
+    assert (with_plane.point_object[6000:] >= 0).mean() > 0.9 and (with_plane.point_object[:6000] < 0).mean() > 0.99
+    assert (without.point_object[6000:] >= 0).mean() < 0.5
 
 
 def test_neighbourhood_min_takes_rows_pm1_and_columns_pm2_with_wrap():

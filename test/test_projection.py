@@ -8,7 +8,14 @@ import pytest
 from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ScanError
 from ros2_mos.core.postprocess import nearest_backproject
-from ros2_mos.core.projection import azimuth, finite_mask, pixel_index, project, project_range
+from ros2_mos.core.projection import (
+    azimuth,
+    closest_point_image,
+    finite_mask,
+    pixel_index,
+    project,
+    project_range,
+)
 
 # 10 rows of 1 degree each from +5 to -5 deg, 8 columns of 45 degrees.
 SENSOR = SensorConfig("test", height=10, width=8, fov_up_deg=5.0, fov_down_deg=-5.0, min_range=0.0, max_range=100.0)
@@ -69,6 +76,15 @@ def test_closest_point_wins_its_pixel_whatever_the_input_order():
         assert image.remission[5, 4] == pytest.approx([0.1, 0.9][near_index])
         np.testing.assert_allclose(image.xyz[5, 4], pts[near_index], rtol=1e-6)
         assert image.mask.sum() == 1
+
+
+def test_closest_point_image_holds_each_pixels_closest_point_and_minus_one_elsewhere():
+    far, near, other = at(-0.2, -0.2, 20.0), at(-0.1, -0.1, 5.0), at(90.0, 2.5, 7.0)
+    for order in ([far, near, other], [near, other, far]):
+        image = closest_point_image(np.array(order), SENSOR)
+        assert image.shape == (10, 8)
+        assert image[5, 4] == order.index(near) and image[2, 2] == order.index(other)
+        assert (image >= 0).sum() == 2
 
 
 def test_project_range_equals_full_projection_range():

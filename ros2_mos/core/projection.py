@@ -172,6 +172,19 @@ def closest_per_pixel(pixels: PixelIndex, width: int, height: int) -> tuple[np.n
     return best, occupied, point_of_pixel[occupied]
 
 
+def closest_point_image(points: np.ndarray, sensor: SensorConfig) -> np.ndarray:
+    """(H, W) the index of each pixel's closest point, -1 where the pixel is empty; points finite with positive
+    range (see ``finite_mask``)."""
+    pts = check_points(points)
+    if kernels.enabled():
+        winner = kernels.project(pts, sensor, closest=True)[2]
+    else:
+        _, occupied, index = closest_per_pixel(pixel_index(pts, sensor), sensor.width, sensor.height)
+        winner = np.full(sensor.height * sensor.width, -1, np.int32)
+        winner[occupied] = index
+    return winner.reshape(sensor.height, sensor.width)
+
+
 def project(points: np.ndarray, remission: np.ndarray, sensor: SensorConfig) -> RangeImage:
     """Project a scan of finite points with positive range to a full range image."""
     pts = check_points(points)

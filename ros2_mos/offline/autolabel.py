@@ -350,7 +350,7 @@ class AutoLabeler:
         scan of the window seen from the pose ``pairs`` refined for it where it did (``labelled``: the online
         model's moving labels of the scan's points, for the cue)."""
         cfg = self.config
-        found = find_objects(points, cfg.objects, vehicle)
+        found = find_objects(points, cfg.objects, vehicle, self.sensor)
         on_object = np.flatnonzero((found.point_object >= 0) & ~found.attached)
         obj = found.point_object[on_object]
         world = np.ascontiguousarray(transform_columns(points[on_object], pose).T)

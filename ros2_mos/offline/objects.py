@@ -7,10 +7,13 @@ candidates. Candidates are grouped into clusters of 26-connected occupied voxels
 the sensor stays one cluster (in a range image its roof and sides break into bands at grazing angles), two cars
 queueing a metre apart stay two, and a canopy above a car is a cluster of its own when there is a free voxel
 between. A cluster is an *object* when it is object-sized: few enough metres long and high, standing on the ground,
-with enough points. The object's lowest points (wheels, feet), within ``ground_height`` of the ground, are attached
-to it where they stand under it (same top-view cell of ``attach_cell`` metres): they take its label but no part in
-its evidence. A cluster longer than ``max_length`` (cars queueing bumper to bumper) is cut again with half-size
-voxels.
+with enough points. Points on no object that belong to one join it by label (they take its label but no part in
+its evidence): the low ones (wheels, feet, a car's lowest ring), within ``ground_height`` of the ground, and the
+fragments too small or flat to be objects, where an object's point lies within ``attach_distance`` metres of them
+seen from above; and, given the sensor, loose points under an object's steep face in their range-image column
+(:func:`attach_below`). Where the sensor's lowest beam cannot reach the ground, the ground is at most the plane
+fitted just beyond (:func:`blind_floor`, ``blind_floor``). A cluster longer than ``max_length`` (cars queueing
+bumper to bumper) is cut again with half-size voxels.
 """
 
 from __future__ import annotations
@@ -19,7 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.projection import closest_point_image
 from ros2_mos.core.segments import _union_find
 
 
@@ -68,10 +73,28 @@ class ObjectConfig:
     flat_top: float = 0.6
     max_bottom: float = 1.5  # m: an object's lowest point is this close to the ground
     attach_above: float = 0.08  # m: low points higher than this above the ground under an object are attached to it
-    attach_cell: float = 0.4  # m: ... when they share a top-view cell of this size with one of its points
+    #: m: ... to the object with a point this close, seen from above: under it (0.4 m attached the road around
+    #: pedestrians on the real r2, whose rings lie 0.1-0.2 m above the local ground's lowest point)
+    attach_distance: float = 0.2
+    #: Clusters too few (``min_points``) or too flat to be objects join the nearest object within ``attach_distance``
+    #: the same way: a sparse sensor sees a car as rings, and a ring piece apart from the rest is such a fragment
+    attach_fragments: bool = True
+    #: degrees: a loose point (low or a fragment) also joins the object of the point just above it in its range-image
+    #: column (the next ring up, found from the sensor's beams) when the two lie on a surface at least this steep
+    #: (0: not at all). Where a sparse sensor sees no ground near an object (its beams reach the road only ~6 m from
+    #: a VLP-16, and its rings lie 10-15 m apart 20-30 m out), the local ground is the object's own lowest ring,
+    #: which the height rules above then take for ground; a car's side is steep, the road in front of it is not.
+    attach_steep: float = 70.0
+    #: Where the sensor's lowest beam cannot reach the ground (within ``|z| / tan(|fov_down|)`` of it: 6.5 m for a
+    #: VLP-16 1.73 m up, 3.7 m for a HDL-64E), no return is ground: the ground there is at most the plane through the
+    #: local ground of the ``blind_ring`` metres just beyond (with ``sensor`` only; False: the local ground alone,
+    #: which there is the lowest ring of whatever stands there)
+    blind_floor: bool = True
+    blind_ring: float = 6.0
 
     def __post_init__(self) -> None:
-        check_numbers(self, "autolabel objects", zero_ok=("ground_radius", "attach_above", "ego_radius"),
+        check_numbers(self, "autolabel objects",
+                      zero_ok=("ground_radius", "attach_above", "ego_radius", "attach_steep"),
                       at_most_one=("ego_share",))
 
 
@@ -121,6 +144,53 @@ def local_ground(points: np.ndarray, cell: float, radius: int, outlier_drop: flo
     kept = z >= quartile[ij[:, 0], ij[:, 1]] - outlier_drop
     ground = windows[0] if kept.all() else _windows(_cell_lowest(ij[kept], z[kept], shape), radius).min(axis=0)
     return ground[ij[:, 0], ij[:, 1]]
+
+
+#: :func:`blind_floor`: ground cells this far (m) off the fitted plane are left out of the second fit, and at least this
+#: many cells must hold ground
+FLOOR_OUTLIER = 0.3
+FLOOR_MIN_CELLS = 12
+
+
+def blind_floor(points: np.ndarray, ground: np.ndarray, sensor: SensorConfig, ring: float) -> np.ndarray:
+    """``ground`` (per point, :func:`local_ground`) no higher than the ground plane where the sensor's beams cannot
+    reach the ground.
+
+    The plane (z = a + b x + c y, sensor frame, so that a pitched sensor is followed) is fitted twice by least
+    squares to the local ground of the 1 m cells ``ring`` metres beyond where the lowest beam meets it (the second
+    time without the cells :data:`FLOOR_OUTLIER` off the first), the sensor's height taken from the median local
+    ground within 3-15 m. Within the blind radius a point's ground is the lower of its local ground and the plane;
+    elsewhere, and where fewer than :data:`FLOOR_MIN_CELLS` cells are left, ``ground`` as it is.
+    """
+    horizontal = np.hypot(points[:, 0], points[:, 1])
+    slope = np.tan(-sensor.fov_down)
+    if slope <= 0:
+        return ground
+    nearby = (horizontal > 3.0) & (horizontal < 15.0)
+    if not nearby.any():
+        return ground
+    below = -float(np.median(ground[nearby]))
+    if not below > 0:
+        return ground
+    blind = below / slope
+    beyond = np.flatnonzero((horizontal > blind) & (horizontal < blind + ring))
+    cells, first = np.unique(np.floor(points[beyond, :2]).astype(np.int64), axis=0, return_index=True)
+    if len(cells) < FLOOR_MIN_CELLS:
+        return ground
+    xy = cells + 0.5
+    z = ground[beyond[first]].astype(np.float64)
+    design = np.column_stack([np.ones(len(xy)), xy])
+    keep = np.ones(len(z), bool)
+    for _ in range(2):
+        if keep.sum() < FLOOR_MIN_CELLS:
+            return ground
+        coef = np.linalg.lstsq(design[keep], z[keep], rcond=None)[0]
+        keep = np.abs(design @ coef - z) <= FLOOR_OUTLIER
+    inside = horizontal < blind
+    out = ground.copy()
+    plane = coef[0] + coef[1] * points[inside, 0] + coef[2] * points[inside, 1]
+    out[inside] = np.minimum(out[inside], plane.astype(out.dtype))
+    return out
 
 
 #: Half of the 26 neighbour offsets of a voxel: each edge is found once.
@@ -231,9 +301,10 @@ def on_vehicle(points: np.ndarray, cells: np.ndarray, config: ObjectConfig) -> n
 
 
 def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
-                 vehicle: np.ndarray | None = None) -> ScanObjects:
+                 vehicle: np.ndarray | None = None, sensor: SensorConfig | None = None) -> ScanObjects:
     """Ground, clusters and object-sized clusters of one scan (sensor frame, finite points); points in ``vehicle``'s
-    cells (:meth:`VehicleReturns.cells`) are on no object."""
+    cells (:meth:`VehicleReturns.cells`) are on no object. With ``sensor``, loose points also join the object above
+    them in their range-image column (``attach_steep``)."""
     n = len(points)
     horizontal = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
     # The ground of the points that can be on an object or beside one (the grid's size, and memory, stay bounded
@@ -242,6 +313,8 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
     height = np.zeros(n, np.float32)
     if len(near):
         ground = local_ground(points[near], config.ground_cell, config.ground_radius, config.ground_outlier)
+        if sensor is not None and config.blind_floor:
+            ground = blind_floor(points[near], ground, sensor, config.blind_ring)
         height[near] = points[near, 2] - ground
     free = ~on_vehicle(points, vehicle, config) if vehicle is not None else True
     candidate = np.flatnonzero((height > config.ground_height) & free
@@ -268,23 +341,126 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
     new_id[good] = np.arange(int(good.sum()), dtype=np.int32)
     point_object = np.full(n, -1, np.int32)
     point_object[candidate] = new_id[cluster]
-    attached = attach_low_points(points, height, point_object, config)
+    low = (height <= config.ground_height) & free & (horizontal < config.max_range**2)
+    loose = low & (height > config.attach_above)
+    if config.attach_fragments:
+        fragment = (counts < config.min_points) | ((tall < config.min_height) & (top < config.flat_top))
+        loose[candidate[fragment[cluster]]] = True
+    attached = attach_to_nearest(points, np.flatnonzero(loose), point_object, config.attach_distance)
+    if sensor is not None and config.attach_steep > 0:
+        # down to the ground: in a blind spot the object's lowest ring is the "ground"
+        column = (loose | low) & (point_object < 0)
+        attached |= attach_below(points, np.flatnonzero(column), point_object, sensor, config.attach_steep)
     return ScanObjects(point_object, counts[good], attached, height)
 
 
-def attach_low_points(points: np.ndarray, height: np.ndarray, point_object: np.ndarray,
-                      config: ObjectConfig) -> np.ndarray:
-    """Give the low points under an object (same top-view ``voxel`` cell) that object's id; returns which were."""
+#: :func:`attach_below` looks this many rows up (and down) a column for the next ring (a VLP-32C's beams are spread
+#: unevenly over its image's rows)
+ATTACH_ROWS_UP = 3
+#: :func:`attach_below`: a point continues the ground of the ring below it in its column (the road at a car's foot)
+#: where it rises at most this many metres over it, plus this share of the distance between them, ...
+GROUND_STEP = 0.15
+GROUND_GRADE = 0.03
+#: ... and no steeper than this (degrees): a car's side rises steeply from ring to ring
+GROUND_STEEPEST = 20.0
+
+
+def _next_return(image: np.ndarray, v: int, cols: np.ndarray, step: int) -> np.ndarray:
+    """Per column ``cols``: the index of the first return from row ``v + step`` on in that direction (up to
+    :data:`ATTACH_ROWS_UP` rows), -1 where none."""
+    out = np.full(len(cols), -1, np.int64)
+    for k in range(1, ATTACH_ROWS_UP + 1):
+        row = v + step * k
+        if not 0 <= row < image.shape[0]:
+            break
+        todo = out < 0
+        out[todo] = image[row, cols[todo]]
+    return out
+
+
+def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
+                 steep: float) -> np.ndarray:
+    """Give each of the points ``loose`` (indices; on no object) the object id of the next return above it in its
+    range-image column where that return is on an object and the two lie on a surface at least ``steep`` degrees
+    steep (height difference over horizontal distance), unless the point continues the ground of the return below
+    it (:data:`GROUND_STEP`, :data:`GROUND_GRADE`, :data:`GROUND_STEEPEST`: the road at the foot of a car). Row by
+    row from the top, so that a column of loose points under an object joins it ring by ring. Returns which
+    points were given one."""
+    attached = np.zeros(len(points), bool)
+    if len(loose) == 0 or not (point_object >= 0).any():
+        return attached
+    image = closest_point_image(points, sensor)
+    is_loose = np.zeros(len(points), bool)
+    is_loose[loose] = True
+    horizontal = np.hypot(points[:, 0], points[:, 1])
+    z = points[:, 2]
+    steep_slope, gentle_slope = np.tan(np.radians(steep)), np.tan(np.radians(GROUND_STEEPEST))
+    for v in range(1, sensor.height):
+        cols = np.flatnonzero(image[v] >= 0)
+        cols = cols[is_loose[image[v, cols]]]
+        if len(cols) == 0:
+            continue
+        point, above, below = image[v, cols], _next_return(image, v, cols, -1), _next_return(image, v, cols, 1)
+        has = above >= 0
+        point, above, below = point[has], above[has], below[has]
+        rise = z[above] - z[point]
+        on_face = (point_object[above] >= 0) & (rise > 0) & (rise >= steep_slope * np.abs(horizontal[above] -
+                                                                                          horizontal[point]))
+        b = np.maximum(below, 0)
+        step, apart = z[point] - z[b], np.abs(horizontal[point] - horizontal[b])
+        on_ground = (below >= 0) & (step <= np.minimum(GROUND_STEP + GROUND_GRADE * apart, gentle_slope * apart))
+        join = on_face & ~on_ground
+        point_object[point[join]] = point_object[above[join]]
+        attached[point[join]] = True
+    return attached
+
+
+#: :func:`attach_to_nearest` measures top-view distances on cells of this size (m)
+ATTACH_GRID = 0.1
+_ATTACH_OFFSET = 1 << 20  # cell indices made non-negative before they are packed into one key
+_ATTACH_SPAN = 1 << 21
+
+
+def _cell_keys(ij: np.ndarray) -> np.ndarray:
+    ij = np.clip(ij, 1 - _ATTACH_OFFSET, _ATTACH_OFFSET - 1) + _ATTACH_OFFSET
+    return ij[:, 0] * _ATTACH_SPAN + ij[:, 1]
+
+
+def attach_to_nearest(points: np.ndarray, low: np.ndarray, point_object: np.ndarray, reach: float) -> np.ndarray:
+    """Give each of the points ``low`` (indices; on no object) the id of the nearest object with a point within
+    ``reach`` metres of it seen from above (distances between :data:`ATTACH_GRID` cells), in ``point_object``;
+    returns which points were given one."""
     on_object = np.flatnonzero(point_object >= 0)
-    low = np.flatnonzero((height > config.attach_above) & (height <= config.ground_height))
     attached = np.zeros(len(points), bool)
     if len(on_object) == 0 or len(low) == 0:
         return attached
-    ij = np.floor(points[:, :2] / config.attach_cell).astype(np.int64)
-    keys = ij[:, 0] * 1_000_003 + ij[:, 1]
-    cells, first = np.unique(keys[on_object], return_index=True)
-    at = np.minimum(np.searchsorted(cells, keys[low]), len(cells) - 1)
-    hit = cells[at] == keys[low]
-    point_object[low[hit]] = point_object[on_object[first[at[hit]]]]
-    attached[low[hit]] = True
+    # Only low points in or beside an object's cell of ``reach`` metres can be that close to one.
+    coarse_object = np.unique(_cell_keys(np.floor(points[on_object, :2] / reach).astype(np.int64)))
+    coarse_low = np.floor(points[low, :2] / reach).astype(np.int64)
+    beside = np.zeros(len(low), bool)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            beside |= np.isin(_cell_keys(coarse_low + (di, dj)), coarse_object)
+    low = low[beside]
+    if len(low) == 0:
+        return attached
+    cells, first = np.unique(_cell_keys(np.floor(points[on_object, :2] / ATTACH_GRID).astype(np.int64)),
+                             return_index=True)
+    owner = point_object[on_object[first]]
+    low_ij = np.floor(points[low, :2] / ATTACH_GRID).astype(np.int64)
+    r = int(np.ceil(reach / ATTACH_GRID))
+    steps = np.array([(di, dj) for di in range(-r, r + 1) for dj in range(-r, r + 1)
+                      if np.hypot(di, dj) * ATTACH_GRID <= reach + 1e-9])
+    steps = steps[np.argsort(np.hypot(steps[:, 0], steps[:, 1]), kind="stable")]
+    todo = np.arange(len(low))
+    for step in steps:  # nearest first: a low point goes to the object nearest to it
+        keys = _cell_keys(low_ij[todo] + step)
+        at = np.minimum(np.searchsorted(cells, keys), len(cells) - 1)
+        hit = cells[at] == keys
+        if hit.any():
+            point_object[low[todo[hit]]] = owner[at[hit]]
+            attached[low[todo[hit]]] = True
+            todo = todo[~hit]
+            if len(todo) == 0:
+                break
     return attached
