@@ -176,7 +176,7 @@ def test_in_the_blind_spot_the_ground_is_the_plane_fitted_beyond_it():
     points = np.vstack([road, car]).astype(np.float32)
     ground = local_ground(points, 1.0, 2, 1.5)
     assert (points[6000:, 2] - ground[6000:]).min() < 0.05  # without the plane: the car's lowest ring is ground
-    floor = blind_floor(points, ground, sensor, 6.0)
+    floor = blind_floor(points, ground, sensor, 6.0, 0.3)
     # The road's plane, rising with x, as low as the local ground is on a slope (its 5 m window's lowest point)
     off = floor[6000:] - (-1.73 + 0.05 * cx)
     assert off.max() < 0.02 and off.min() > -0.2

@@ -152,15 +152,18 @@ FLOOR_OUTLIER = 0.3
 FLOOR_MIN_CELLS = 12
 
 
-def blind_floor(points: np.ndarray, ground: np.ndarray, sensor: SensorConfig, ring: float) -> np.ndarray:
+def blind_floor(points: np.ndarray, ground: np.ndarray, sensor: SensorConfig, ring: float,
+                lift: float) -> np.ndarray:
     """``ground`` (per point, :func:`local_ground`) no higher than the ground plane where the sensor's beams cannot
     reach the ground.
 
     The plane (z = a + b x + c y, sensor frame, so that a pitched sensor is followed) is fitted twice by least
     squares to the local ground of the 1 m cells ``ring`` metres beyond where the lowest beam meets it (the second
     time without the cells :data:`FLOOR_OUTLIER` off the first), the sensor's height taken from the median local
-    ground within 3-15 m. Within the blind radius a point's ground is the lower of its local ground and the plane;
-    elsewhere, and where fewer than :data:`FLOOR_MIN_CELLS` cells are left, ``ground`` as it is.
+    ground within 3-15 m. Within the blind radius a point's ground is the plane where its local ground lies more than
+    ``lift`` above it (the lowest ring of something standing there; the real HDL-64E's first ground rings lie about
+    that radius out, a little off the plane); elsewhere, and where fewer than :data:`FLOOR_MIN_CELLS` cells are left,
+    ``ground`` as it is.
     """
     horizontal = np.hypot(points[:, 0], points[:, 1])
     slope = np.tan(-sensor.fov_down)
@@ -174,10 +177,11 @@ def blind_floor(points: np.ndarray, ground: np.ndarray, sensor: SensorConfig, ri
         return ground
     blind = below / slope
     beyond = np.flatnonzero((horizontal > blind) & (horizontal < blind + ring))
-    cells, first = np.unique(np.floor(points[beyond, :2]).astype(np.int64), axis=0, return_index=True)
-    if len(cells) < FLOOR_MIN_CELLS:
+    ij = np.floor(points[beyond, :2]).astype(np.int64)
+    _, first = np.unique(_cell_keys(ij), return_index=True)  # one sample per 1 m cell
+    if len(first) < FLOOR_MIN_CELLS:
         return ground
-    xy = cells + 0.5
+    xy = ij[first] + 0.5
     z = ground[beyond[first]].astype(np.float64)
     design = np.column_stack([np.ones(len(xy)), xy])
     keep = np.ones(len(z), bool)
@@ -186,10 +190,11 @@ def blind_floor(points: np.ndarray, ground: np.ndarray, sensor: SensorConfig, ri
             return ground
         coef = np.linalg.lstsq(design[keep], z[keep], rcond=None)[0]
         keep = np.abs(design @ coef - z) <= FLOOR_OUTLIER
-    inside = horizontal < blind
+    inside = np.flatnonzero(horizontal < blind)
+    plane = (coef[0] + coef[1] * points[inside, 0] + coef[2] * points[inside, 1]).astype(ground.dtype)
     out = ground.copy()
-    plane = coef[0] + coef[1] * points[inside, 0] + coef[2] * points[inside, 1]
-    out[inside] = np.minimum(out[inside], plane.astype(out.dtype))
+    lifted = ground[inside] - plane > lift  # only where the "ground" is clearly something standing on it
+    out[inside[lifted]] = plane[lifted]
     return out
 
 
@@ -314,7 +319,7 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
     if len(near):
         ground = local_ground(points[near], config.ground_cell, config.ground_radius, config.ground_outlier)
         if sensor is not None and config.blind_floor:
-            ground = blind_floor(points[near], ground, sensor, config.blind_ring)
+            ground = blind_floor(points[near], ground, sensor, config.blind_ring, config.ground_height)
         height[near] = points[near, 2] - ground
     free = ~on_vehicle(points, vehicle, config) if vehicle is not None else True
     candidate = np.flatnonzero((height > config.ground_height) & free
@@ -435,13 +440,12 @@ def attach_to_nearest(points: np.ndarray, low: np.ndarray, point_object: np.ndar
     if len(on_object) == 0 or len(low) == 0:
         return attached
     # Only low points in or beside an object's cell of ``reach`` metres can be that close to one.
-    coarse_object = np.unique(_cell_keys(np.floor(points[on_object, :2] / reach).astype(np.int64)))
-    coarse_low = np.floor(points[low, :2] / reach).astype(np.int64)
-    beside = np.zeros(len(low), bool)
-    for di in (-1, 0, 1):
-        for dj in (-1, 0, 1):
-            beside |= np.isin(_cell_keys(coarse_low + (di, dj)), coarse_object)
-    low = low[beside]
+    coarse = np.unique(_cell_keys(np.floor(points[on_object, :2] / reach).astype(np.int64)))
+    steps = np.array([di * _ATTACH_SPAN + dj for di in (-1, 0, 1) for dj in (-1, 0, 1)], np.int64)
+    around = np.unique((coarse[:, None] + steps[None, :]).reshape(-1))
+    keys = _cell_keys(np.floor(points[low, :2] / reach).astype(np.int64))
+    at = np.minimum(np.searchsorted(around, keys), len(around) - 1)
+    low = low[around[at] == keys]
     if len(low) == 0:
         return attached
     cells, first = np.unique(_cell_keys(np.floor(points[on_object, :2] / ATTACH_GRID).astype(np.int64)),
