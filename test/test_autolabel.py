@@ -289,11 +289,13 @@ def test_config_is_checked():
             AutolabelConfig(**bad)
     for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
                      (ObjectConfig, {"ego_share": 1.5}), (ObjectConfig, {"ego_cell": 0.0}),
+                     (ObjectConfig, {"attach_distance": 0.0}), (ObjectConfig, {"attach_steep": 95.0}),
+                     (ObjectConfig, {"attach_steep": float("nan")}), (ObjectConfig, {"blind_ring": -1.0}),
                      (TrackConfig, {"gate": -1.0}), (TrackConfig, {"seen_through": 2.0})):
         with pytest.raises(ConfigError):
             cls(**bad)
     # zero where zero means something
-    AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0, ego_radius=0.0))
+    AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0, ego_radius=0.0, attach_steep=0.0))
 
 
 def test_box_shift_counts_only_what_both_edges_agree_on():

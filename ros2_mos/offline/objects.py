@@ -86,9 +86,9 @@ class ObjectConfig:
     #: which the height rules above then take for ground; a car's side is steep, the road in front of it is not.
     attach_steep: float = 70.0
     #: Where the sensor's lowest beam cannot reach the ground (within ``|z| / tan(|fov_down|)`` of it: 6.5 m for a
-    #: VLP-16 1.73 m up, 3.7 m for a HDL-64E), no return is ground: the ground there is at most the plane through the
-    #: local ground of the ``blind_ring`` metres just beyond (with ``sensor`` only; False: the local ground alone,
-    #: which there is the lowest ring of whatever stands there)
+    #: VLP-16 1.73 m up, 3.7 m for a HDL-64E), the local ground is the lowest ring of whatever stands there: where it
+    #: lies more than ``ground_height`` above the plane through the local ground of the ``blind_ring`` metres just
+    #: beyond, the plane is the ground (:func:`blind_floor`; with ``sensor`` only)
     blind_floor: bool = True
     blind_ring: float = 6.0
 
@@ -96,6 +96,8 @@ class ObjectConfig:
         check_numbers(self, "autolabel objects",
                       zero_ok=("ground_radius", "attach_above", "ego_radius", "attach_steep"),
                       at_most_one=("ego_share",))
+        if self.attach_steep > 90:
+            raise ConfigError(f"autolabel objects: attach_steep must be at most 90 degrees, got {self.attach_steep!r}")
 
 
 @dataclass
@@ -154,8 +156,8 @@ FLOOR_MIN_CELLS = 12
 
 def blind_floor(points: np.ndarray, ground: np.ndarray, sensor: SensorConfig, ring: float,
                 lift: float) -> np.ndarray:
-    """``ground`` (per point, :func:`local_ground`) no higher than the ground plane where the sensor's beams cannot
-    reach the ground.
+    """``ground`` (per point, :func:`local_ground`), with the ground plane where the sensor's beams cannot reach the
+    ground and the local ground is something standing there.
 
     The plane (z = a + b x + c y, sensor frame, so that a pitched sensor is followed) is fitted twice by least
     squares to the local ground of the 1 m cells ``ring`` metres beyond where the lowest beam meets it (the second
@@ -308,8 +310,9 @@ def on_vehicle(points: np.ndarray, cells: np.ndarray, config: ObjectConfig) -> n
 def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
                  vehicle: np.ndarray | None = None, sensor: SensorConfig | None = None) -> ScanObjects:
     """Ground, clusters and object-sized clusters of one scan (sensor frame, finite points); points in ``vehicle``'s
-    cells (:meth:`VehicleReturns.cells`) are on no object. With ``sensor``, loose points also join the object above
-    them in their range-image column (``attach_steep``)."""
+    cells (:meth:`VehicleReturns.cells`) are on no object. With ``sensor``, the ground in the sensor's blind spot
+    comes from the plane beyond it (``blind_floor``) and loose points also join the object above them in their
+    range-image column (``attach_steep``)."""
     n = len(points)
     horizontal = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
     # The ground of the points that can be on an object or beside one (the grid's size, and memory, stay bounded
