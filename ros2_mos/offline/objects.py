@@ -434,39 +434,39 @@ def _cell_keys(ij: np.ndarray) -> np.ndarray:
     return ij[:, 0] * _ATTACH_SPAN + ij[:, 1]
 
 
-def attach_to_nearest(points: np.ndarray, low: np.ndarray, point_object: np.ndarray, reach: float) -> np.ndarray:
-    """Give each of the points ``low`` (indices; on no object) the id of the nearest object with a point within
+def attach_to_nearest(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray, reach: float) -> np.ndarray:
+    """Give each of the points ``loose`` (indices; on no object) the id of the nearest object with a point within
     ``reach`` metres of it seen from above (distances between :data:`ATTACH_GRID` cells), in ``point_object``;
     returns which points were given one."""
     on_object = np.flatnonzero(point_object >= 0)
     attached = np.zeros(len(points), bool)
-    if len(on_object) == 0 or len(low) == 0:
+    if len(on_object) == 0 or len(loose) == 0:
         return attached
-    # Only low points in or beside an object's cell of ``reach`` metres can be that close to one.
+    # Only loose points in or beside an object's cell of ``reach`` metres can be that close to one.
     coarse = np.unique(_cell_keys(np.floor(points[on_object, :2] / reach).astype(np.int64)))
     steps = np.array([di * _ATTACH_SPAN + dj for di in (-1, 0, 1) for dj in (-1, 0, 1)], np.int64)
     around = np.unique((coarse[:, None] + steps[None, :]).reshape(-1))
-    keys = _cell_keys(np.floor(points[low, :2] / reach).astype(np.int64))
+    keys = _cell_keys(np.floor(points[loose, :2] / reach).astype(np.int64))
     at = np.minimum(np.searchsorted(around, keys), len(around) - 1)
-    low = low[around[at] == keys]
-    if len(low) == 0:
+    loose = loose[around[at] == keys]
+    if len(loose) == 0:
         return attached
     cells, first = np.unique(_cell_keys(np.floor(points[on_object, :2] / ATTACH_GRID).astype(np.int64)),
                              return_index=True)
     owner = point_object[on_object[first]]
-    low_ij = np.floor(points[low, :2] / ATTACH_GRID).astype(np.int64)
+    loose_ij = np.floor(points[loose, :2] / ATTACH_GRID).astype(np.int64)
     r = int(np.ceil(reach / ATTACH_GRID))
     steps = np.array([(di, dj) for di in range(-r, r + 1) for dj in range(-r, r + 1)
                       if np.hypot(di, dj) * ATTACH_GRID <= reach + 1e-9])
     steps = steps[np.argsort(np.hypot(steps[:, 0], steps[:, 1]), kind="stable")]
-    todo = np.arange(len(low))
-    for step in steps:  # nearest first: a low point goes to the object nearest to it
-        keys = _cell_keys(low_ij[todo] + step)
+    todo = np.arange(len(loose))
+    for step in steps:  # nearest first: a loose point goes to the object nearest to it
+        keys = _cell_keys(loose_ij[todo] + step)
         at = np.minimum(np.searchsorted(cells, keys), len(cells) - 1)
         hit = cells[at] == keys
         if hit.any():
-            point_object[low[todo[hit]]] = owner[at[hit]]
-            attached[low[todo[hit]]] = True
+            point_object[loose[todo[hit]]] = owner[at[hit]]
+            attached[loose[todo[hit]]] = True
             todo = todo[~hit]
             if len(todo) == 0:
                 break
