@@ -364,7 +364,7 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
 
 #: :func:`attach_below` looks this many rows up (and down) a column for the next ring (a VLP-32C's beams are spread
 #: unevenly over its image's rows)
-ATTACH_ROWS_UP = 3
+COLUMN_SEARCH_ROWS = 3
 #: :func:`attach_below`: a point continues the ground of the ring below it in its column (the road at a car's foot)
 #: where it rises at most this many metres over it, plus this share of the distance between them, ...
 GROUND_STEP = 0.15
@@ -375,9 +375,9 @@ GROUND_STEEPEST = 20.0
 
 def _next_return(image: np.ndarray, v: int, cols: np.ndarray, step: int) -> np.ndarray:
     """Per column ``cols``: the index of the first return from row ``v + step`` on in that direction (up to
-    :data:`ATTACH_ROWS_UP` rows), -1 where none."""
+    :data:`COLUMN_SEARCH_ROWS` rows), -1 where none."""
     out = np.full(len(cols), -1, np.int64)
-    for k in range(1, ATTACH_ROWS_UP + 1):
+    for k in range(1, COLUMN_SEARCH_ROWS + 1):
         row = v + step * k
         if not 0 <= row < image.shape[0]:
             break
