@@ -505,13 +505,33 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
         Track(31, [obs(k, 370.0) for k in range(60)]),
         Track(32, [obs(57 + k, 372.0, size=(0.2, 1.7)) for k in range(6)]),
         Track(33, [obs(60 + k, 370.5 + 0.5 * k, far=0.5, size=(2.0, 1.8)) for k in range(20)]),
+        # a cyclist (1.8 x 0.6 m) who waited at x 400 for 50 scans, then rode off, seen through in his track's last
+        # 3 scans (0.6 m: too few, too close, to make it a mover) before it broke; a parked car's track begins where
+        # he ended as he ended, and his mover's first glimpse (0.3 x 0.5 m) is a quarter of him
+        Track(34, [obs(k, 400.0, size=(1.8, 0.6)) for k in range(50)]
+              + [obs(50 + k, 400.3 + 0.3 * k, far=0.5, size=(1.8, 0.6)) for k in range(3)]),
+        Track(35, [obs(53 + k, 401.3 + 0.3 * k, far=0.5, size=(0.3, 0.5)) for k in range(20)]),
+        Track(36, [obs(52 + k, 401.5) for k in range(20)]),
+        # a car and a cyclist that waited side by side (one cluster, 6 x 1.8 m: 10.8 m2, over handover_max_area)
+        # and left together, two tracks that begin in the same scan: together 6 x 1.5 m (9 m2)
+        Track(37, [obs(k, 430.0, size=(6.0, 1.8)) for k in range(60)]),
+        Track(38, [obs(60 + k, 430.0 - 0.5 * k, far=0.5, size=(3.0, 1.5)) for k in range(20)]),
+        Track(39, [obs(60 + k, 434.5 + 0.5 * k, far=0.5, size=(1.5, 0.6)) for k in range(20)]),
     ]
     movers = tracker.movers()
     assert movers == {1: SEEN_THROUGH, 6: SEEN_THROUGH, 9: SEEN_THROUGH, 12: SEEN_THROUGH, 14: SEEN_THROUGH,
                       16: SEEN_THROUGH, 18: SEEN_THROUGH, 20: SEEN_THROUGH, 22: SEEN_THROUGH, 24: SEEN_THROUGH,
-                      26: SEEN_THROUGH, 27: SEEN_THROUGH, 28: SEEN_THROUGH, 30: SEEN_THROUGH, 33: SEEN_THROUGH}
+                      26: SEEN_THROUGH, 27: SEEN_THROUGH, 28: SEEN_THROUGH, 30: SEEN_THROUGH, 33: SEEN_THROUGH,
+                      35: SEEN_THROUGH, 38: SEEN_THROUGH, 39: SEEN_THROUGH}
     assert tracker.handovers(movers) == {0: WAITED, 5: WAITED, 4: WAITED, 13: WAITED, 17: WAITED, 21: WAITED,
-                                         25: WAITED, 29: WAITED, 31: WAITED}
+                                         25: WAITED, 29: WAITED, 31: WAITED, 34: WAITED, 37: WAITED}
+    unseen = Tracker(dataclasses.replace(tracker.config, handover_seen_moving=False))
+    unseen.tracks = tracker.tracks
+    assert 34 not in unseen.handovers(movers)  # without: the parked car began where he ended, and took his place
+    unfilled = Tracker(dataclasses.replace(tracker.config, handover_filled=False))
+    unfilled.tracks = tracker.tracks
+    assert 37 not in unfilled.handovers(movers)  # without: larger than a car
+    assert 37 not in tracker.handovers({38: SEEN_THROUGH})  # the car alone (4.5 m2) does not fill half of it
     assert 25 not in tracker.handovers({26: SEEN_THROUGH})  # one sliver alone is 9 times smaller than the car
     stay_anywhere = Tracker(dataclasses.replace(tracker.config, handover_travel=0.0))
     stay_anywhere.tracks = tracker.tracks
@@ -525,6 +545,36 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
     assert Tracker(TrackConfig(handover_scans=0)).handovers(movers) == {}
     with pytest.raises(ConfigError, match="handover_margin"):
         TrackConfig(handover_margin=float("nan"))
+
+
+
+def test_a_track_that_waited_is_moving_where_it_stood_as_it_ended_and_where_it_was_seen_through():
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, AutolabelResult
+    from ros2_mos.offline.tracks import WAITED, Observation, Track, Tracker
+
+    def obs(scan: int, x: float, far: float = 0.0) -> Observation:
+        lo, hi = np.array([x, 2.0, 0.0]), np.array([x + 1.8, 2.6, 1.5])
+        return Observation(scan, 0, (lo + hi) / 2, 50, lo, hi, far, far)
+
+    # A cyclist waits at x 10-11.8 (scans 0-9), then rides off (x 10.6, 11.2, 13.5: scans 10-12), seen through as he
+    # rides; his track breaks and is handed over to the mover that goes on. It is moving where it was seen through,
+    # and where he waited, which those boxes overlap.
+    tracker = Tracker()
+    tracker.tracks = [Track(0, [obs(k, 10.0) for k in range(10)] + [obs(10, 10.6, 0.5), obs(11, 11.2, 0.5),
+                                                                   obs(12, 13.5, 0.5)])]
+    labeler = AutoLabeler(sensor_preset("hdl64"), AutolabelConfig(support_margin=0.3))
+    result = AutolabelResult("cyclist", 13, np.repeat(np.eye(4)[None], 13, 0), np.arange(13) * 0.1, tracker,
+                             {0: WAITED}, [50] * 13)
+    assert labeler._moving_ever(result) == {(k, 0) for k in range(13)}
+    # Under the instant convention it moves as it rides off: box speed over +-5 observations (instant_span) at least
+    # 0.4 m/s from scan 5 on (x 10 -> 10.6 between scans 0 and 10: 0.6 m/s), not while it waited before that.
+    assert labeler._moving_now(result) == {(k, 0) for k in range(5, 13)}
+    # Seen through in no scan but where it ended (x 13.5-15.3): moving there and within 2 x 0.3 m of it (x 11.2-13,
+    # 0.5 m away), not where it waited (1.7 m away) nor at x 10.6-12.4 (1.1 m).
+    tracker.tracks = [Track(0, [obs(k, 10.0) for k in range(10)] + [obs(10 + k, 10.6 + 0.6 * k)
+                                                                   for k in range(2)] + [obs(12, 13.5)])]
+    assert labeler._moving_ever(result) == {(11, 0), (12, 0)}
 
 
 def test_an_object_whose_seen_through_part_lies_apart_from_the_rest_is_two():

@@ -394,13 +394,12 @@ class AutoLabeler:
         ``instant_motion='centroid'`` their centroid within ``instant_context`` observations of one that was seen
         through (the centroid of a car that waits long slides as the sensor passes it; the box rule needs no such
         guard, and with it a car that leaves at the very end of a drive, with no later scan to see through its old
-        place, still counts)."""
+        place, still counts). A track that waited, then left (:meth:`Tracker.handovers`) is judged by the same
+        rules: it stands while it waits and moves as it moves off."""
         cfg = self.config
         out = set()
         for tid, evidence in result.movers.items():
             obs = result.tracker.tracks[tid].observations
-            if evidence == WAITED:  # it stood there
-                continue
             if evidence == ONLINE_MODEL:  # no seen-through place to move from: the online model's word, scan by scan
                 out.update((o.scan, o.obj) for o in obs if o.online >= CUE_MOVING_NOW)
                 continue
@@ -440,9 +439,9 @@ class AutoLabeler:
                 continue
             lo = np.array([o.lo[:2] for o in obs]) - cfg.support_margin
             hi = np.array([o.hi[:2] for o in obs]) + cfg.support_margin
-            # A track that waited, then left (Tracker.handovers): where it stood when it ended.
-            evidence = np.arange(len(obs)) == len(obs) - 1 if evidence == WAITED else \
-                np.array([o.far >= cfg.tracks.seen_through for o in obs])
+            # A track that waited, then left (Tracker.handovers): where it stood when it ended, too.
+            seen = np.array([o.far >= cfg.tracks.seen_through for o in obs])
+            evidence = seen | (np.arange(len(obs)) == len(obs) - 1) if evidence == WAITED else seen
             overlap = overlap_from_above(lo[:, None, :], hi[:, None, :], lo[None, evidence, :], hi[None, evidence, :])
             out.update((o.scan, o.obj) for o, supported in zip(obs, overlap.any(axis=1)) if supported)
         return out

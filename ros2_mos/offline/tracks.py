@@ -77,6 +77,14 @@ class TrackConfig:
     #: nothing over: it cannot have left a place it waited at (a hedge or a kerb seen through now and then is a mover
     #: by its share of seen-through observations, and stays where it is)
     handover_travel: float = 1.5
+    #: A track whose last ``min_moving_observations`` observations were seen through (it was moving as it ended) is
+    #: the mover that begins where it ended, whatever its size and whatever else began there: a cyclist who waited,
+    #: rode off and broke his track is no parked car that a passer-by merged with
+    handover_seen_moving: bool = True
+    #: A track at most twice the first glimpse of two or more movers that begin in its place together (``_glimpse``)
+    #: is them, however large (``handover_max_area`` is for clusters that a lone passer-by left): a car and a cyclist
+    #: that waited side by side, one cluster, and left together
+    handover_filled: bool = True
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
@@ -272,17 +280,26 @@ class Tracker:
         return hits >= cfg.cue_observations and hits >= cfg.cue_track_share * len(track.observations) and \
             evidence_travel(track.observations, cfg.evidence_travel) >= cfg.cue_travel
 
-    def _car_sized_as_it_ended(self, track: Track, beside: float) -> bool:
+    def _car_sized_as_it_ended(self, track: Track, beside: float, together: int = 1) -> bool:
         """Whether ``track``'s last box is ``handover_smaller`` to ``handover_larger`` times the footprint ``beside``
-        and ``handover_min_area`` to ``handover_max_area``; or, where it is smaller than that (the stub of a car
+        (of ``together`` movers) and ``handover_min_area`` to ``handover_max_area`` (with ``handover_filled`` and two
+        or more movers, up to twice ``beside`` however large); or, where it is smaller than that (the stub of a car
         moving off), whether the track's median footprint is."""
         cfg = self.config
         low = max(cfg.handover_smaller * beside, cfg.handover_min_area)
         high = min(cfg.handover_larger * beside, cfg.handover_max_area)
+        if cfg.handover_filled and together > 1:
+            high = max(high, beside / cfg.handover_smaller)
         area = footprint(track.last)
         if area < low:
             area = median_footprint(track)
         return low <= area <= high
+
+    def _moving_as_it_ended(self, track: Track) -> bool:
+        """Whether ``track``'s last ``min_moving_observations`` observations were seen through."""
+        cfg = self.config
+        last = track.observations[-cfg.min_moving_observations:]
+        return len(last) == cfg.min_moving_observations and all(o.far >= cfg.seen_through for o in last)
 
     def _as_it_ended(self, track: Track) -> tuple[np.ndarray, np.ndarray]:
         """The top-view box where ``track`` stood as it ended: its last box, or where it ended as the shrinking stub of
@@ -309,7 +326,8 @@ class Tracker:
         track. Fragments of a car moving off (tracks shorter than ``handover_scans``) do not count, nor does the next
         car of a queue, whose track began long before it took the place, nor a mover whose track began as a part cut off
         an object for being seen through (a passer-by leaving the kerb or pole it was merged with), nor one whose boxes
-        travelled less than ``handover_travel`` (it left nowhere: a hedge seen through now and then)."""
+        travelled less than ``handover_travel`` (it left nowhere: a hedge seen through now and then). A track that was
+        itself seen moving as it ended (``handover_seen_moving``) needs none of the size and emptiness checks."""
         cfg = self.config
         if cfg.handover_scans == 0 or not movers:
             return {}
@@ -359,19 +377,24 @@ class Tracker:
             for a in near:
                 if not (travelled or self._left(b, end_lo[a], end_hi[a])):
                     continue  # it did not leave: nothing waited there (a track it was handed over to stood, by design)
-                glimpse = self._glimpse(first, end_lo[a], end_hi[a], beginning.get(first.scan, []), movers, out)
-                if self._car_sized_as_it_ended(self.tracks[a], glimpse) and left_empty(a):
+                if cfg.handover_seen_moving and self._moving_as_it_ended(self.tracks[a]):
+                    out[a] = WAITED
+                    todo.append(a)
+                    continue
+                glimpse, together = self._glimpse(first, end_lo[a], end_hi[a], beginning.get(first.scan, []), movers,
+                                                  out)
+                if self._car_sized_as_it_ended(self.tracks[a], glimpse, together) and left_empty(a):
                     out[a] = WAITED
                     todo.append(a)
         return out
 
     def _glimpse(self, first: Observation, lo: np.ndarray, hi: np.ndarray, beginning: list[Track],
-                 movers: dict[int, str], waited: dict[int, str]) -> float:
+                 movers: dict[int, str], waited: dict[int, str]) -> tuple[float, int]:
         """The footprint of the first glimpse of a car moving off from the top-view box (lo, hi) as the mover's track
         beginning with ``first`` begins: the box around ``first`` and the first observations of the other movers'
         tracks that begin in the same scan (``beginning``: the tracks that do) there (boxes grown by
-        ``handover_margin``). A car seen end-on as it pulls away (one that queued behind or ahead of the sensor)
-        breaks into slivers, each a track of its own."""
+        ``handover_margin``), and how many tracks' first boxes it holds. A car seen end-on as it pulls away (one that
+        queued behind or ahead of the sensor) breaks into slivers, each a track of its own."""
         m = self.config.handover_margin
         firsts = [first] + [t.observations[0] for t in beginning
                             if t.observations[0] is not first and (t.id in movers or t.id in waited)
@@ -379,7 +402,7 @@ class Tracker:
                                                    lo - m, hi + m)]
         side = np.maximum(np.max([o.hi[:2] for o in firsts], axis=0) - np.min([o.lo[:2] for o in firsts], axis=0),
                           MIN_FOOTPRINT_SIDE)
-        return float(side[0] * side[1])
+        return float(side[0] * side[1]), len(firsts)
 
     def _left(self, mover: Track, lo: np.ndarray, hi: np.ndarray) -> bool:
         """Whether ``mover``'s track ended apart from the top-view box (lo, hi) it began in (grown by
