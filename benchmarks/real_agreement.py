@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ros2_mos.core.errors import DatasetError
 from ros2_mos.io.labels import MOVING, to_moving_classes
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label
 
@@ -77,4 +78,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except DatasetError as error:  # a drive missing from one of the roots: say which, no traceback
+        raise SystemExit(f"real_agreement: {error}") from None
