@@ -442,6 +442,29 @@ def test_parts_cut_off_for_being_seen_through_make_a_mover_only_if_they_travel()
     assert tracker.seen_moving(Track(2, [part(25 + 3 * i, -3.1, cut=False) for i in range(4)]))  # uncut: as before
 
 
+
+def test_the_online_model_vetoes_a_mover_by_share_alone_that_it_calls_static():
+    from ros2_mos.offline.tracks import SEEN_THROUGH, Observation, Track, TrackConfig, Tracker
+
+    def obs(scan: int, x: float, far: float, online: float) -> Observation:
+        lo, hi = np.array([x, 2.0, 0.0]), np.array([x + 1.0, 5.0, 1.5])
+        return Observation(scan, 0, (lo + hi) / 2, 80, lo, hi, far, far, online)
+
+    # A hedge (1 x 3 m) seen through in 4 of its 10 observations (0.4 >= moving_share), standing: a mover by share.
+    hedge = [obs(k, 30.0, 0.5 if k % 3 == 0 else 0.0, 0.0) for k in range(10)]
+    # A pedestrian whose seen-through boxes lie 2.7 m apart: a mover by travel, whatever the model says.
+    walker = [obs(k, 40.0 + 0.3 * k, 0.5, 0.0) for k in range(10)]
+    tracker = Tracker(TrackConfig(cue_veto=True, cue_veto_share=0.05))
+    tracker.tracks = [Track(0, hedge), Track(1, walker),
+                      Track(2, [dataclasses.replace(o, online=0.1) for o in hedge])]  # the model: 10 % moving
+    assert tracker.movers(cue=True) == {1: SEEN_THROUGH, 2: SEEN_THROUGH}
+    assert tracker.movers(cue=False) == {0: SEEN_THROUGH, 1: SEEN_THROUGH, 2: SEEN_THROUGH}  # no model, no veto
+    tracker.config = TrackConfig(cue_veto=False)
+    assert 0 in tracker.movers(cue=True)
+    with pytest.raises(ConfigError, match="cue_veto_share"):
+        TrackConfig(cue_veto_share=float("inf"))
+
+
 def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
     from ros2_mos.offline.tracks import SEEN_THROUGH, WAITED, Observation, Track, TrackConfig, Tracker
 

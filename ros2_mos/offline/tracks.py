@@ -47,6 +47,12 @@ class TrackConfig:
     #: An observation whose footprint (box area) is this many times larger or smaller than the track's last one
     #: does not continue it: a track that lost its mover must not jump onto the hedge or the row of cars beside it.
     max_area_ratio: float = 4.0
+    #: A track that is a mover only by its share of seen-through observations (they travelled less than
+    #: ``min_evidence_travel``) is none where the online model, when there is one, labelled at most ``cue_veto_share``
+    #: of its observations' points moving on average: foliage and fences are seen through now and then, and the model
+    #: knows them for static
+    cue_veto: bool = False
+    cue_veto_share: float = 0.05
     #: A track that visibility does not make a mover is one on the online model's word (``Observation.online``) when
     #: at least ``cue_observations`` of its observations, and ``cue_track_share`` of them, had ``cue_share`` of their
     #: points labelled moving by it: queueing cars whose place the next car fills are never seen through.
@@ -91,8 +97,9 @@ class TrackConfig:
 
         check_numbers(self, "autolabel tracks",
                       zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
-                               "handover_travel", "cue_travel"),
-                      at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller"))
+                               "handover_travel", "cue_travel", "cue_veto_share"),
+                      at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller",
+                                   "cue_veto_share"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
                               f"{self.evidence_travel!r}")
@@ -258,7 +265,7 @@ class Tracker:
         track.observations.append(obs)
         self.track_of[(obs.scan, obs.obj)] = track.id
 
-    def seen_moving(self, track: Track) -> bool:
+    def seen_moving(self, track: Track, cue: bool = False) -> bool:
         """Enough of the track's observations were seen through: a share of them, or fewer that lie apart (a car
         that waited most of the drive and then left; a static object seen through now and then stays in place). A
         track made mostly of parts cut off an object for being seen through (:class:`Observation`'s ``cut``) must
@@ -270,7 +277,11 @@ class Tracker:
         travelled = evidence_travel(evidence, cfg.evidence_travel) >= cfg.min_evidence_travel
         if 2 * sum(o.cut for o in track.observations) > len(track.observations):
             return travelled  # parts cut off for being seen through (a pole beside a hedge): only if they travel
-        return travelled or len(evidence) >= cfg.moving_share * len(track.observations)
+        if travelled:
+            return True
+        if cue and cfg.cue_veto and np.mean([o.online for o in track.observations]) <= cfg.cue_veto_share:
+            return False  # seen through now and then where it stands, and the online model calls it static
+        return len(evidence) >= cfg.moving_share * len(track.observations)
 
     def labelled_moving(self, track: Track) -> bool:
         """The online model labelled enough of the track's observations moving (see ``TrackConfig.cue_share``), and
@@ -410,11 +421,12 @@ class Tracker:
         m = self.config.handover_margin
         return not bool(overlap_from_above(mover.last.lo[:2] - m, mover.last.hi[:2] + m, lo - m, hi + m))
 
-    def movers(self) -> dict[int, str]:
-        """{track id: the evidence that makes it a mover}: 'seen through', else 'online model'."""
+    def movers(self, cue: bool = False) -> dict[int, str]:
+        """{track id: the evidence that makes it a mover}: 'seen through', else 'online model' (``cue``: the
+        observations carry the online model's labels)."""
         out = {}
         for t in self.tracks:
-            if self.seen_moving(t):
+            if self.seen_moving(t, cue):
                 out[t.id] = SEEN_THROUGH
             elif self.labelled_moving(t):
                 out[t.id] = ONLINE_MODEL
