@@ -89,7 +89,7 @@ class AutolabelConfig:
     #: ... and these too for motion at any time (SemanticKITTI's).
     far_offsets: tuple[int, ...] = (-40, -20, -10, 10, 20, 40)
     #: An observation of a mover moves now when this share of its points was seen through by a near scan ...
-    instant_seen_through: float = 0.08
+    instant_seen_through: float = 0.15
     #: ... or its box (or centroid) moved this fast (m/s) over the observations ``instant_span`` before and after it.
     instant_speed: float = 0.4
     instant_span: int = 5
