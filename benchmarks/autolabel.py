@@ -10,6 +10,7 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --seeds unseen4        # round 24's check of round 23's rules (one looked at)
     python benchmarks/autolabel.py --seeds unseen5        # round 25's check of round 25's rule (HDL-64E, VLP-16)
     python benchmarks/autolabel.py --seeds unseen6        # round 26's check of round 26's handover and poses
+    python benchmarks/autolabel.py --seeds unseen7        # round 31's check of rounds 27-31
     python benchmarks/autolabel.py --seeds validation --no-online --set instant_speed=0.6 --set instant_span=3
     python benchmarks/autolabel.py --seeds validation --no-online --set objects.attach_distance=0.4
 
@@ -68,9 +69,13 @@ UNSEEN5_SEEDS = {"traffic_jam": (10101, 10102, 10103, 10104), "narrow_street": (
 #: Round 26's check of round 26's handover and pose choice (narrow_street-10213 looked at for its poses).
 UNSEEN6_SEEDS = {"traffic_jam": (10201, 10202, 10203, 10204), "narrow_street": (10211, 10212, 10213),
                  "benchmark": (10221, 10222), "easy": (10231, 10232)}
+#: Round 31's check of the rules of rounds 27-31 (pair registration, blind floor, handovers of waited tracks), first
+#: simulated for it on the HDL-64E, VLP-32C and VLP-16 (unseen6's sparse-sensor drives were looked into in round 30).
+UNSEEN7_SEEDS = {"traffic_jam": (10301, 10302, 10303, 10304), "narrow_street": (10311, 10312, 10313),
+                 "benchmark": (10321, 10322), "easy": (10331, 10332)}
 SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_SEEDS, "unseen": UNSEEN_SEEDS,
              "unseen2": UNSEEN2_SEEDS, "unseen3": UNSEEN3_SEEDS, "unseen4": UNSEEN4_SEEDS, "unseen5": UNSEEN5_SEEDS,
-             "unseen6": UNSEEN6_SEEDS}
+             "unseen6": UNSEEN6_SEEDS, "unseen7": UNSEEN7_SEEDS}
 
 
 def score_drive(folder: Path, sensor: str, online: bool,
