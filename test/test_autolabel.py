@@ -340,11 +340,12 @@ def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_m
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_THROUGH, Observation, Track, TrackConfig, Tracker
 
-    def track(tid: int, online: list[float], far: float = 0.0, step: float = 0.2) -> Track:
-        """Observations ``step`` m apart along x (a queue creeping on, 1.8 m over 10 observations)."""
+    def track(tid: int, online: list[float], far: float = 0.0, step: float = 0.2, distance: float = 12.0) -> Track:
+        """Observations ``step`` m apart along x (a queue creeping on, 1.8 m over 10 observations), ``distance`` m
+        from the sensor."""
         centre = np.array([10.0, 3.0, 0.8])
         at = [centre + [step * k, 0.0, 0.0] for k in range(len(online))]
-        return Track(tid, [Observation(k, 0, c, 100, c - 1, c + 1, far, far, share)
+        return Track(tid, [Observation(k, 0, c, 100, c - 1, c + 1, far, far, share, distance=distance)
                            for k, (c, share) in enumerate(zip(at, online))])
 
     tracker = Tracker(TrackConfig(cue_share=0.6, cue_observations=5, cue_track_share=0.5, cue_travel=1.5))
@@ -355,11 +356,14 @@ def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_m
         track(3, [0.59] * 10),  # under cue_share
         track(4, [0.0] * 10, far=0.5),  # seen through: a mover without the model
         track(5, [0.9] * 10, step=0.0),  # a parked car beside a narrow street that the model labels moving: it stands
+        # a parked car the sensor passes 2.9 m away: the model labels it moving, and its visible box slides
+        track(6, [0.7] * 5 + [0.0] * 5, distance=2.9),
+        track(7, [0.7] * 5 + [0.0] * 5, distance=4.0),  # a queueing car 4 m away: far enough
     ]
-    assert tracker.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH}
-    anywhere = Tracker(dataclasses.replace(tracker.config, cue_travel=0.0))
+    assert tracker.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH, 7: ONLINE_MODEL}
+    anywhere = Tracker(dataclasses.replace(tracker.config, cue_travel=0.0, cue_min_distance=0.0))
     anywhere.tracks = tracker.tracks
-    assert anywhere.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH, 5: ONLINE_MODEL}
+    assert anywhere.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH, 5: ONLINE_MODEL, 6: ONLINE_MODEL, 7: ONLINE_MODEL}
     # the cue's model: the one shipped for the sensor, none for a sensor without one or with the cue off
     assert AutoLabeler(sensor_preset("hdl64")).cue_model.name == "default.onnx"
     assert AutoLabeler(sensor_preset("vlp16")).cue_model.name == "vlp16.onnx"
@@ -367,6 +371,9 @@ def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_m
     assert AutoLabeler(sensor_preset("hdl64"), AutolabelConfig(online_cue=False)).cue_model is None
     with pytest.raises(ConfigError, match="cue_share"):
         TrackConfig(cue_share=1.5)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="cue_min_distance"):
+            TrackConfig(cue_min_distance=bad)
 
 
 def test_a_scan_the_online_model_refuses_goes_without_the_cue(jam, tmp_path, monkeypatch):
@@ -390,6 +397,9 @@ def test_a_scan_the_online_model_refuses_goes_without_the_cue(jam, tmp_path, mon
     third = [o for t in result.tracker.tracks for o in t.observations if o.scan == 2]
     assert third and all(o.online == 0.0 for o in third)  # the refused scan: no cue
     assert any(o.online > 0 for t in result.tracker.tracks for o in t.observations)  # the cue ran elsewhere
+    for o in (o for t in result.tracker.tracks for o in t.observations):  # the cue's distance check: from the sensor
+        sensor = result.poses[o.scan][:2, 3]
+        assert o.distance == pytest.approx(float(np.hypot(*(o.centroid[:2] - sensor))))
 
 
 def test_seen_through_observations_lie_apart_only_when_their_boxes_travel():

@@ -375,6 +375,7 @@ class AutoLabeler:
         np.maximum(far, near, out=far)
         sums = np.stack([np.bincount(obj, world[:, i], n_objects) for i in range(3)], axis=1)
         centroids = sums / counts[:, None]
+        distance = np.hypot(centroids[:, 0] - pose[0, 3], centroids[:, 1] - pose[1, 3])
         # float32 like the points: ufunc.at casting float32 into float64 takes numpy's slow path
         lo = np.full((n_objects, 3), np.inf, np.float32)
         hi = np.full((n_objects, 3), -np.inf, np.float32)
@@ -385,7 +386,8 @@ class AutoLabeler:
         online = np.zeros(n_objects) if labelled is None else \
             np.bincount(obj, labelled[on_object].astype(np.float64), n_objects) / counts
         observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]),
-                                    float(online[j]), j >= found.n_objects) for j in range(n_objects)]
+                                    float(online[j]), j >= found.n_objects, float(distance[j]))
+                        for j in range(n_objects)]
         return point_object, observations
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
