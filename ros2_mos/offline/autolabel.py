@@ -419,7 +419,7 @@ class AutoLabeler:
             else:
                 c = np.array([o.centroid[:2] for o in obs])
                 shift = c[after] - c[before]
-                seen = np.flatnonzero([o.far >= cfg.tracks.seen_through for o in obs])
+                seen = np.flatnonzero([result.tracker.seen_through(o) for o in obs])
                 context = (np.abs(index[:, None] - seen[None, :]) <= cfg.instant_context).any(axis=1) if len(seen) \
                     else np.zeros(m, bool)
             speed = np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
@@ -442,7 +442,7 @@ class AutoLabeler:
             lo = np.array([o.lo[:2] for o in obs]) - cfg.support_margin
             hi = np.array([o.hi[:2] for o in obs]) + cfg.support_margin
             # A track that waited, then left (Tracker.handovers): where it stood when it ended, too.
-            seen = np.array([o.far >= cfg.tracks.seen_through for o in obs])
+            seen = np.array([result.tracker.seen_through(o) for o in obs])
             evidence = seen | (np.arange(len(obs)) == len(obs) - 1) if evidence == WAITED else seen
             overlap = overlap_from_above(lo[:, None, :], hi[:, None, :], lo[None, evidence, :], hi[None, evidence, :])
             out.update((o.scan, o.obj) for o, supported in zip(obs, overlap.any(axis=1)) if supported)

@@ -274,6 +274,11 @@ class Tracker:
         track.observations.append(obs)
         self.track_of[(obs.scan, obs.obj)] = track.id
 
+    def seen_through(self, obs: Observation) -> bool:
+        """Whether ``obs`` is moving evidence: at least ``seen_through`` of its points were seen through by a scan of
+        the window (its ``far`` share)."""
+        return obs.far >= self.config.seen_through
+
     def seen_moving(self, track: Track, cue: bool = False) -> bool:
         """Enough of the track's observations were seen through: a share of them, or fewer that lie apart (a car
         that waited most of the drive and then left; a static object seen through now and then stays in place). A
@@ -282,7 +287,7 @@ class Tracker:
         observations carry the online model's labels) and ``cue_veto``, one that did not travel must not be one the
         model calls static."""
         cfg = self.config
-        evidence = [o for o in track.observations if o.far >= cfg.seen_through]
+        evidence = [o for o in track.observations if self.seen_through(o)]
         if len(evidence) < cfg.min_moving_observations:
             return False
         travelled = evidence_travel(evidence, cfg.evidence_travel) >= cfg.min_evidence_travel
@@ -322,7 +327,7 @@ class Tracker:
         """Whether ``track``'s last ``min_moving_observations`` observations were seen through."""
         cfg = self.config
         last = track.observations[-cfg.min_moving_observations:]
-        return len(last) == cfg.min_moving_observations and all(o.far >= cfg.seen_through for o in last)
+        return len(last) == cfg.min_moving_observations and all(self.seen_through(o) for o in last)
 
     def _as_it_ended(self, track: Track) -> tuple[np.ndarray, np.ndarray]:
         """The top-view box where ``track`` stood as it ended: its last box, or where it ended as the shrinking stub of
