@@ -363,7 +363,9 @@ def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_m
     assert tracker.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH, 7: ONLINE_MODEL}
     anywhere = Tracker(dataclasses.replace(tracker.config, cue_travel=0.0, cue_min_distance=0.0))
     anywhere.tracks = tracker.tracks
-    assert anywhere.movers() == {0: ONLINE_MODEL, 4: SEEN_THROUGH, 5: ONLINE_MODEL, 6: ONLINE_MODEL, 7: ONLINE_MODEL}
+    # without the travel and distance checks also track 2: its 5 labelled observations are a run (``cue_run``)
+    assert anywhere.movers() == {0: ONLINE_MODEL, 2: ONLINE_MODEL, 4: SEEN_THROUGH, 5: ONLINE_MODEL, 6: ONLINE_MODEL,
+                                 7: ONLINE_MODEL}
     # the cue's model: the one shipped for the sensor, none for a sensor without one or with the cue off
     assert AutoLabeler(sensor_preset("hdl64")).cue_model.name == "default.onnx"
     assert AutoLabeler(sensor_preset("vlp16")).cue_model.name == "vlp16.onnx"
@@ -374,6 +376,33 @@ def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_m
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ConfigError, match="cue_min_distance"):
             TrackConfig(cue_min_distance=bad)
+
+
+def test_a_car_the_online_model_saw_drive_up_then_wait_long_is_a_mover_by_its_run_of_moving_labels():
+    from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, Track, TrackConfig, Tracker
+
+    def track(tid: int, online: list[float], steps: list[float], distance: float = 30.0) -> Track:
+        """Observations ``steps[k]`` m along x after the one before (a car 4 m long, seen from above)."""
+        x = np.cumsum([0.0, *steps[1:]]) if steps else np.zeros(0)
+        return Track(tid, [Observation(k, 0, np.array([40.0 - xk, 3.0, 0.8]), 100, np.array([38.0 - xk, 2.1, 0.0]),
+                                       np.array([42.0 - xk, 3.9, 1.5]), 0.0, 0.0, share, distance=distance)
+                           for k, (xk, share) in enumerate(zip(x, online))])
+
+    drove = [0.4] * 6  # 6 observations driving up at 0.4 m per scan (2.0 m between the first and the last) ...
+    config = TrackConfig(cue_share=0.6, cue_observations=5, cue_track_share=0.5, cue_travel=1.5)
+    tracker = Tracker(dataclasses.replace(config, cue_run=True))
+    tracker.tracks = [
+        track(0, [0.9] * 6 + [0.0] * 30, drove + [0.0] * 30),  # ... then waiting 30, the model calling it static
+        track(1, [0.9, 0.0] * 6 + [0.0] * 24, [0.4] * 12 + [0.0] * 24),  # labelled moving every other scan: no run
+        track(2, [0.9] * 6 + [0.0] * 30, [0.2] * 6 + [0.0] * 30),  # a run of 6 that crept 1.0 m: too little
+        track(3, [0.9] * 6 + [0.0] * 30, drove + [0.0] * 30, distance=2.9),  # a car passed at arm's length
+        track(4, [0.0] * 30 + [0.9] * 6, [0.0] * 30 + drove),  # waited, then drove off under the model's eye
+    ]
+    # by hand: track 0's run spans boxes 38.0 -> 36.0 (both edges 2.0 m the same way) >= 1.5 m, at 30 m >= 4 m
+    assert tracker.movers() == {0: ONLINE_MODEL, 4: ONLINE_MODEL}
+    without = Tracker(dataclasses.replace(config, cue_run=False))  # off: 6 of 36 observations is under half of them
+    without.tracks = tracker.tracks
+    assert without.movers() == {}
 
 
 def test_a_scan_the_online_model_refuses_goes_without_the_cue(jam, tmp_path, monkeypatch):
