@@ -312,6 +312,48 @@ def test_box_shift_counts_only_what_both_edges_agree_on():
         np.testing.assert_allclose(got, [expected])
 
 
+def test_an_edge_the_vehicles_shadow_cut_does_not_count_in_a_boxs_shift():
+    # the rear half of a bus alongside in a jam: its front edge pinned at the shadow (x -1.1 -> -1.1) while its rear
+    # edge comes on 0.6 m (-9.9 -> -9.3)
+    lo0, hi0 = np.array([[-9.9, 2.3]]), np.array([[-1.1, 2.3]])
+    lo1, hi1 = np.array([[-9.3, 2.3]]), np.array([[-1.1, 2.3]])
+    np.testing.assert_allclose(box_shift(lo0, hi0, lo1, hi1), [[0.0, 0.0]])  # one edge moved: nothing
+    cut_lo, cut_hi = np.array([[False, False]]), np.array([[True, False]])
+    np.testing.assert_allclose(box_shift(lo0, hi0, lo1, hi1, cut_lo, cut_hi), [[0.6, 0.0]])  # the rear edge's move
+    both = np.array([[True, False]])  # both x edges cut: nothing along x; y as before
+    np.testing.assert_allclose(box_shift(lo0, hi0, lo1 + 1.0, hi1 + 1.0, both, both), [[0.0, 1.0]])
+
+
+def test_the_edge_where_the_vehicles_shadow_cuts_an_object_lies_at_the_blind_radius():
+    from ros2_mos.offline.autolabel import SHADOW_MARGIN, blind_radius, edge_reach
+
+    # the sensor at the origin; 30 returns 2.55 m out behind it (the blind radius: the 21st nearest, on no object)
+    angle = np.radians(np.linspace(-170.0, -100.0, 30))
+    ring = np.column_stack([2.55 * np.cos(angle), 2.55 * np.sin(angle), np.zeros(30)])
+    # object 0: the rear half of a bus 2.3 m to the left, x -9.9 .. -1.1, cut by the shadow at x -1.1 (range 2.56)
+    xs = np.round(np.arange(-9.9, -1.05, 0.1), 6)
+    bus = np.column_stack([xs, np.full(len(xs), 2.3), np.zeros(len(xs))])
+    # object 1: a parked car's side 2.6 m to the right, x -2 .. 2: its nearest point (2.6 m) lies in its middle
+    xs = np.round(np.arange(-2.0, 2.05, 0.1), 6)
+    car = np.column_stack([xs, np.full(len(xs), -2.6), np.zeros(len(xs))])
+    points = np.vstack([ring, bus, car])
+    assert blind_radius(points) == pytest.approx(2.55)
+    assert blind_radius(points[:20]) == np.inf
+    world = points[30:] + [100.0, 50.0, 0.0]  # the world frame: only the ranges come from the sensor's
+    obj = np.r_[np.zeros(len(bus), np.int64), np.ones(len(car), np.int64)]
+    lo = np.array([world[obj == j].min(axis=0) for j in (0, 1)])
+    hi = np.array([world[obj == j].max(axis=0) for j in (0, 1)])
+    reach = edge_reach(np.linalg.norm(points[30:], axis=1), world, obj, lo, hi)
+    # by hand: the bus's upper x edge: its 2 points x -1.2, -1.1 (within 0.15 m); 90 % of 2: the 2nd nearest,
+    # hypot(1.2, 2.3) = 2.594; its side (y 2.3, both y edges): 90 % of its 89 points, the 81st nearest (x -9.1); the
+    # car's side (y -2.6): 90 % of its 41 points, the 37th nearest, hypot(1.8, 2.6) = 3.162
+    assert reach[0, 1, 0] == pytest.approx(np.hypot(1.2, 2.3), abs=1e-6)
+    assert reach[0, 0, 1] == reach[0, 1, 1] == pytest.approx(np.hypot(9.1, 2.3), abs=1e-6)
+    assert reach[1, 1, 1] == pytest.approx(np.hypot(1.8, 2.6), abs=1e-6)
+    cut = reach <= blind_radius(points) + SHADOW_MARGIN  # within 2.65 m
+    assert cut.tolist() == [[[False, False], [True, False]], [[False, False], [False, False]]]
+
+
 def test_a_track_does_not_jump_onto_an_object_many_times_its_size():
     from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
 

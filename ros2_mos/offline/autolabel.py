@@ -95,6 +95,9 @@ class AutolabelConfig:
     instant_span: int = 5
     instant_motion: str = "box"
     instant_context: int = 10  # observations (the centroid rule only)
+    #: ... the box's edges that the vehicle's shadow cut (``Observation.edge_reach`` at the drive's blind radius)
+    #: not counted: a bus alongside the sensor is two objects, each with one edge pinned at the shadow, one moving
+    shadow_edges: bool = True
     #: An observation of a mover is moving (SemanticKITTI's convention) only where its box, grown by this many
     #: metres, overlaps from above the box of a seen-through observation of its track (see ``_moving_ever``).
     support_margin: float = 0.3
@@ -156,6 +159,8 @@ class AutolabelResult:
     cue_skipped: int = 0  # scans the online model refused (ScanError): no cue for them
     #: the KISS-ICP pass the poses are: 'f' forwards, 'b' backwards ("" with the drive's own poses or one pass)
     odometry_followed: str = ""
+    #: m: the nearest the sensor saw anything over the drive (:func:`blind_radius`): where the vehicle's shadow begins
+    blind_radius: float = float("inf")
 
 
 ProgressFn = Callable[[str, int], None]  # (stage, scans done in it)
@@ -217,12 +222,13 @@ class AutoLabeler:
         vehicle = VehicleReturns(self.config.objects)
         poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
         tracker = Tracker(self.config.tracks)
-        cue_skipped = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir, progress)
+        cue_skipped, blind = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir,
+                                                        progress)
         movers = tracker.movers(cue=self.cue_model is not None)
         movers.update(tracker.handovers(movers))
         result = AutolabelResult(drive.name, n, poses, stamps, tracker, movers, sizes,
                                  cue_model=self.cue_model.name if self.cue_model is not None else "",
-                                 cue_skipped=cue_skipped, odometry_followed=followed)
+                                 cue_skipped=cue_skipped, odometry_followed=followed, blind_radius=blind)
         result.moving_ever = self._moving_ever(result)
         now = self._moving_now(result)
         if self.config.ever_from_motion:
@@ -291,8 +297,9 @@ class AutoLabeler:
         return poses[::-1].copy()
 
     def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, vehicle: np.ndarray,
-                              tracker: Tracker, workdir: Path, progress: ProgressFn) -> int:
-        """Steps 2 and 3 over the drive; returns how many scans the online cue's model refused."""
+                              tracker: Tracker, workdir: Path, progress: ProgressFn) -> tuple[int, float]:
+        """Steps 2 and 3 over the drive; returns how many scans the online cue's model refused, and the drive's
+        blind radius (:func:`blind_radius`)."""
         window = self.config.window
         n = len(poses)
         seen: dict[int, SeenScan] = {}
@@ -302,6 +309,7 @@ class AutoLabeler:
         loaded = 0
         online = self._online_model()
         skipped = 0
+        blind = float("inf")
         pairs = PairRegistration(self.config.pairs)
         offsets = (*self.config.near_offsets, *self.config.far_offsets)
         try:
@@ -326,6 +334,7 @@ class AutoLabeler:
                     except ScanError:  # a scan the online model refuses gets no cue; visibility still judges it
                         skipped += 1
                 observations = self._observe(k, points, poses[k], vehicle, seen, pairs, labelled)
+                blind = min(blind, blind_radius(points))
                 tracker.add_scan(k, float(stamps[k]), last_stamp, observations[1])
                 last_stamp = float(stamps[k])
                 np.save(workdir / f"{k:06d}.npy", observations[0])
@@ -333,7 +342,7 @@ class AutoLabeler:
         finally:
             if online is not None:
                 online.close()
-        return skipped
+        return skipped, blind
 
     def _online_model(self) -> "MosPipeline | None":
         """The online pipeline for the cue (with autolabel's poses: no odometry of its own), or None."""
@@ -383,10 +392,11 @@ class AutoLabeler:
             np.minimum.at(lo[:, i], obj, world[:, i])
             np.maximum.at(hi[:, i], obj, world[:, i])
         lo, hi = lo.astype(np.float64), hi.astype(np.float64)
+        reach = edge_reach(np.linalg.norm(points[on_object, :3], axis=1), world, obj, lo, hi)
         online = np.zeros(n_objects) if labelled is None else \
             np.bincount(obj, labelled[on_object].astype(np.float64), n_objects) / counts
         observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]),
-                                    float(online[j]), j >= found.n_objects, float(distance[j]))
+                                    float(online[j]), j >= found.n_objects, float(distance[j]), reach[j])
                         for j in range(n_objects)]
         return point_object, observations
 
@@ -414,7 +424,12 @@ class AutoLabeler:
             if cfg.instant_motion == "box":
                 lo = np.array([o.lo[:2] for o in obs])
                 hi = np.array([o.hi[:2] for o in obs])
-                shift = box_shift(lo[before], hi[before], lo[after], hi[after])
+                if cfg.shadow_edges and np.isfinite(result.blind_radius):  # a cut edge (in either box) does not count
+                    cut = np.array([o.edge_reach for o in obs]) <= result.blind_radius + SHADOW_MARGIN
+                    shift = box_shift(lo[before], hi[before], lo[after], hi[after], cut[before, 0] | cut[after, 0],
+                                      cut[before, 1] | cut[after, 1])
+                else:
+                    shift = box_shift(lo[before], hi[before], lo[after], hi[after])
                 context = np.ones(m, bool)
             else:
                 c = np.array([o.centroid[:2] for o in obs])
@@ -458,6 +473,48 @@ class AutoLabeler:
             else:
                 moving[j] = (scan, j) in result.moving_now
         return moving
+
+
+#: The drive's blind radius (:func:`blind_radius`) is the range of a scan's this-many-th nearest return (a few stray
+#: returns nearer do not count), the least over the drive; an object's box edge whose points (those within
+#: ``SHADOW_EDGE`` metres of it) lie, ``SHADOW_SHARE`` of them, within ``SHADOW_MARGIN`` metres of it is the vehicle's
+#: shadow's cut (:func:`edge_reach`); an object's own side facing the sensor reaches farther out.
+SHADOW_RANK = 20
+SHADOW_MARGIN = 0.1
+SHADOW_EDGE = 0.15
+SHADOW_SHARE = 0.9
+
+
+def blind_radius(points: np.ndarray) -> float:
+    """m: how near the sensor a scan (sensor frame) has returns: its :data:`SHADOW_RANK`-th nearest (inf if fewer)."""
+    if len(points) <= SHADOW_RANK:
+        return float("inf")
+    return float(np.partition(np.linalg.norm(points[:, :3], axis=1), SHADOW_RANK)[SHADOW_RANK])
+
+
+def edge_reach(ranges: np.ndarray, world: np.ndarray, obj: np.ndarray, lo: np.ndarray,
+               hi: np.ndarray) -> np.ndarray:
+    """(n, 2, 2) per object (boxes ``lo``, ``hi``), edge (lower, upper) and axis (x, y): the range from the sensor
+    within which :data:`SHADOW_SHARE` of its points within :data:`SHADOW_EDGE` of that edge lie (inf: none).
+    ``ranges``, ``world``, ``obj``: per point on an object, its range from the sensor, world position and object.
+
+    The sensor sees nothing nearer than its blind radius (the vehicle's body, or its minimum range), so an object
+    alongside (a bus in the next lane) is cut there in two, and the cut's points all lie at that radius.
+    """
+    n = len(lo)
+    reach = np.full((n, 2, 2), np.inf)
+    for side, edge in enumerate((lo, hi)):
+        for axis in (0, 1):
+            at = np.flatnonzero(np.abs(world[:, axis] - edge[obj, axis]) <= SHADOW_EDGE)
+            if not len(at):
+                continue
+            order = at[np.lexsort((ranges[at], obj[at]))]  # object by object, nearest first
+            counts = np.bincount(obj[order], minlength=n)
+            has = np.flatnonzero(counts)
+            starts = np.cumsum(counts) - counts
+            pick = starts[has] + np.ceil(SHADOW_SHARE * counts[has]).astype(np.int64) - 1
+            reach[has, side, axis] = ranges[order[pick]]
+    return reach
 
 
 #: :func:`split_seen_apart`: a part of an object is its seen-through part where at least this share of its points

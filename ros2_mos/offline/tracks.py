@@ -135,6 +135,10 @@ class Observation:
     online: float = 0.0  # share of its points the online model labelled moving (0 without the online cue)
     cut: bool = False  # the seen-through part cut off an object (autolabel's ``split_seen_apart``)
     distance: float = float("inf")  # m from the sensor to its centroid, seen from above (inf: not known)
+    #: (2, 2) m per edge of its box ([lower, upper] x [x, y]): how far from the sensor its points along that edge lie
+    #: (:func:`~ros2_mos.offline.autolabel.edge_reach`); an edge at the drive's blind radius is where the vehicle's
+    #: shadow cut the object, no edge of it (a bus alongside is two objects, each with one edge pinned there)
+    edge_reach: np.ndarray = field(default_factory=lambda: np.full((2, 2), np.inf))
 
     @property
     def size(self) -> np.ndarray:
@@ -168,17 +172,23 @@ class Track:
         return float((np.linalg.norm(c[window:] - c[:-window], axis=1) / dt).max())
 
 
-def box_shift(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray) -> np.ndarray:
+def box_shift(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray,
+              cut_lo: np.ndarray | None = None, cut_hi: np.ndarray | None = None) -> np.ndarray:
     """(M, D) how far boxes moved from (lo0, hi0) to (lo1, hi1), per axis, counting only what both edges agree on.
 
     A standing object's visible box grows or shrinks as the view changes, one edge at a time, and its centroid
     slides with it; a moving one carries both edges along. Per axis: where both edges moved the same way, the
-    smaller of the two moves; where they moved apart (or one stayed), nothing.
+    smaller of the two moves; where they moved apart (or one stayed), nothing. An edge that is a cut (``cut_lo``,
+    ``cut_hi``: the vehicle's shadow, in either box) does not count: the other edge's move is the box's; with both
+    cut, nothing.
     """
     d_lo = lo1 - lo0
     d_hi = hi1 - hi0
     same_way = np.sign(d_lo) == np.sign(d_hi)
-    return np.where(same_way, np.where(np.abs(d_lo) < np.abs(d_hi), d_lo, d_hi), 0.0)
+    shift = np.where(same_way, np.where(np.abs(d_lo) < np.abs(d_hi), d_lo, d_hi), 0.0)
+    if cut_lo is None or cut_hi is None:
+        return shift
+    return np.where(cut_lo, np.where(cut_hi, 0.0, d_hi), np.where(cut_hi, d_lo, shift))
 
 
 #: :func:`evidence_travel` compares at most about this many observations, evenly spread over the track (and its last):
