@@ -74,7 +74,7 @@ class TrackConfig:
     #: A track whose observations the model labelled moving are too few a share of it (it drove up, then waited long:
     #: SemanticKITTI's mover throughout) is one on the model's word where ``cue_observations`` consecutive ones were
     #: labelled moving and travelled ``cue_travel`` among themselves, ``cue_min_distance`` or farther from the sensor
-    #: (VLP-32C unseen7 benchmark-10321 74.4 -> 92.3; 8 new movers on 112 VLP-32C and VLP-16 drives, one of them
+    #: (VLP-32C unseen7 benchmark-10321 74.4 -> 92.3; 7 new movers on 112 VLP-32C and VLP-16 drives, one of them
     #: false: benchmarks/autolabel.md, round 32)
     cue_run: bool = True
     #: scans: a track that ends within this many scans of where a mover's track begins (their boxes, grown by
