@@ -337,20 +337,21 @@ def test_the_edge_where_the_vehicles_shadow_cuts_an_object_lies_at_the_blind_rad
     xs = np.round(np.arange(-2.0, 2.05, 0.1), 6)
     car = np.column_stack([xs, np.full(len(xs), -2.6), np.zeros(len(xs))])
     points = np.vstack([ring, bus, car])
-    assert blind_radius(points) == pytest.approx(2.55)
-    assert blind_radius(points[:20]) == np.inf
+    ranges = np.linalg.norm(points, axis=1)
+    assert blind_radius(ranges) == pytest.approx(2.55)
+    assert blind_radius(ranges[:20]) == np.inf
     world = points[30:] + [100.0, 50.0, 0.0]  # the world frame: only the ranges come from the sensor's
     obj = np.r_[np.zeros(len(bus), np.int64), np.ones(len(car), np.int64)]
     lo = np.array([world[obj == j].min(axis=0) for j in (0, 1)])
     hi = np.array([world[obj == j].max(axis=0) for j in (0, 1)])
-    reach = edge_reach(np.linalg.norm(points[30:], axis=1), world, obj, lo, hi)
+    reach = edge_reach(ranges[30:], world, obj, lo, hi)
     # by hand: the bus's upper x edge: its 2 points x -1.2, -1.1 (within 0.15 m); 90 % of 2: the 2nd nearest,
     # hypot(1.2, 2.3) = 2.594; its side (y 2.3, both y edges): 90 % of its 89 points, the 81st nearest (x -9.1); the
     # car's side (y -2.6): 90 % of its 41 points, the 37th nearest, hypot(1.8, 2.6) = 3.162
     assert reach[0, 1, 0] == pytest.approx(np.hypot(1.2, 2.3), abs=1e-6)
     assert reach[0, 0, 1] == reach[0, 1, 1] == pytest.approx(np.hypot(9.1, 2.3), abs=1e-6)
     assert reach[1, 1, 1] == pytest.approx(np.hypot(1.8, 2.6), abs=1e-6)
-    cut = reach <= blind_radius(points) + SHADOW_MARGIN  # within 2.65 m
+    cut = reach <= blind_radius(ranges) + SHADOW_MARGIN  # within 2.65 m
     assert cut.tolist() == [[[False, False], [True, False]], [[False, False], [False, False]]]
 
 

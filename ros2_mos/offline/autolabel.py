@@ -333,11 +333,12 @@ class AutoLabeler:
                         labelled = online.process(points, intensity, float(stamps[k]), pose=poses[k]).labels
                     except ScanError:  # a scan the online model refuses gets no cue; visibility still judges it
                         skipped += 1
-                observations = self._observe(k, points, poses[k], vehicle, seen, pairs, labelled)
-                blind = min(blind, blind_radius(points))
-                tracker.add_scan(k, float(stamps[k]), last_stamp, observations[1])
+                point_object, observations, nearest = self._observe(k, points, poses[k], vehicle, seen, pairs,
+                                                                    labelled)
+                blind = min(blind, nearest)
+                tracker.add_scan(k, float(stamps[k]), last_stamp, observations)
                 last_stamp = float(stamps[k])
-                np.save(workdir / f"{k:06d}.npy", observations[0])
+                np.save(workdir / f"{k:06d}.npy", point_object)
                 progress("objects", 1)
         finally:
             if online is not None:
@@ -354,10 +355,11 @@ class AutoLabeler:
         return MosPipeline(MosConfig(model=str(self.cue_model), sensor=self.sensor))
 
     def _observe(self, k: int, points: np.ndarray, pose: np.ndarray, vehicle: np.ndarray, seen: dict[int, SeenScan],
-                 pairs: PairRegistration, labelled: np.ndarray | None = None) -> tuple[np.ndarray, list[Observation]]:
-        """Scan k's objects (per point ids; none on the ``vehicle``'s cells) and one observation per object, each
+                 pairs: PairRegistration,
+                 labelled: np.ndarray | None = None) -> tuple[np.ndarray, list[Observation], float]:
+        """Scan k's objects (per point ids; none on the ``vehicle``'s cells), one observation per object, each
         scan of the window seen from the pose ``pairs`` refined for it where it did (``labelled``: the online
-        model's moving labels of the scan's points, for the cue)."""
+        model's moving labels of the scan's points, for the cue), and the scan's :func:`blind_radius`."""
         cfg = self.config
         found = find_objects(points, cfg.objects, vehicle, self.sensor)
         on_object = np.flatnonzero((found.point_object >= 0) & ~found.attached)
@@ -392,13 +394,14 @@ class AutoLabeler:
             np.minimum.at(lo[:, i], obj, world[:, i])
             np.maximum.at(hi[:, i], obj, world[:, i])
         lo, hi = lo.astype(np.float64), hi.astype(np.float64)
-        reach = edge_reach(np.linalg.norm(points[on_object, :3], axis=1), world, obj, lo, hi)
+        ranges = np.linalg.norm(points[:, :3], axis=1)  # from the sensor
+        reach = edge_reach(ranges[on_object], world, obj, lo, hi)
         online = np.zeros(n_objects) if labelled is None else \
             np.bincount(obj, labelled[on_object].astype(np.float64), n_objects) / counts
         observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]),
                                     float(online[j]), j >= found.n_objects, float(distance[j]), reach[j])
                         for j in range(n_objects)]
-        return point_object, observations
+        return point_object, observations, blind_radius(ranges)
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
         """The observations of movers that move in their own scan (the instant convention): seen through by a near
@@ -424,12 +427,11 @@ class AutoLabeler:
             if cfg.instant_motion == "box":
                 lo = np.array([o.lo[:2] for o in obs])
                 hi = np.array([o.hi[:2] for o in obs])
+                cut_lo = cut_hi = None
                 if cfg.shadow_edges and np.isfinite(result.blind_radius):  # a cut edge (in either box) does not count
                     cut = np.array([o.edge_reach for o in obs]) <= result.blind_radius + SHADOW_MARGIN
-                    shift = box_shift(lo[before], hi[before], lo[after], hi[after], cut[before, 0] | cut[after, 0],
-                                      cut[before, 1] | cut[after, 1])
-                else:
-                    shift = box_shift(lo[before], hi[before], lo[after], hi[after])
+                    cut_lo, cut_hi = cut[before, 0] | cut[after, 0], cut[before, 1] | cut[after, 1]
+                shift = box_shift(lo[before], hi[before], lo[after], hi[after], cut_lo, cut_hi)
                 context = np.ones(m, bool)
             else:
                 c = np.array([o.centroid[:2] for o in obs])
@@ -485,11 +487,12 @@ SHADOW_EDGE = 0.15
 SHADOW_SHARE = 0.9
 
 
-def blind_radius(points: np.ndarray) -> float:
-    """m: how near the sensor a scan (sensor frame) has returns: its :data:`SHADOW_RANK`-th nearest (inf if fewer)."""
-    if len(points) <= SHADOW_RANK:
+def blind_radius(ranges: np.ndarray) -> float:
+    """m: how near the sensor a scan has returns (``ranges``: per point, from the sensor): its
+    :data:`SHADOW_RANK`-th nearest (inf if fewer)."""
+    if len(ranges) <= SHADOW_RANK:
         return float("inf")
-    return float(np.partition(np.linalg.norm(points[:, :3], axis=1), SHADOW_RANK)[SHADOW_RANK])
+    return float(np.partition(ranges, SHADOW_RANK)[SHADOW_RANK])
 
 
 def edge_reach(ranges: np.ndarray, world: np.ndarray, obj: np.ndarray, lo: np.ndarray,

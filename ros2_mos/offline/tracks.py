@@ -324,7 +324,7 @@ class Tracker:
         hit = np.array([o.online >= cfg.cue_share for o in obs])
         if hit.sum() < cfg.cue_observations:
             return False
-        if self._labelled_moving_along(obs) and hit.sum() >= cfg.cue_track_share * len(obs):
+        if hit.sum() >= cfg.cue_track_share * len(obs) and self._labelled_moving_along(obs):
             return True
         if not cfg.cue_run:
             return False
