@@ -653,6 +653,76 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
 
 
 
+def test_a_track_that_begins_where_a_mover_stood_hidden_is_that_mover_seen_again():
+    from ros2_mos.offline.tracks import RESUMED, SEEN_THROUGH, WAITED, Observation, Track, TrackConfig, Tracker
+
+    def obs(scan: int, x0: float, x1: float, points: int = 100, far: float = 0.0, y: float = 5.7) -> Observation:
+        lo, hi = np.array([x0, y, 0.0]), np.array([x1, y + 0.2, 3.0])
+        return Observation(scan, 0, (lo + hi) / 2, points, lo, hi, far, far)
+
+    def bus(tid: int, x: float, first: int = 0) -> list[Track]:
+        """A bus (10 m) drives up, seen through (scans 0-9), stops at x..x+10 (10-16), is hidden bit by bit as a
+        truck passes between (17-21: the box's rear edge creeps forward, fewer points), and is seen again where it
+        stood from scan 30 on, revealed from the rear (30-34), as a new track."""
+        return [Track(tid, [obs(first + k, x + 10 - k, x + 20 - k, far=0.5) for k in range(10)]
+                      + [obs(first + k, x, x + 10) for k in range(10, 17)]
+                      + [obs(first + 17 + i, x + 2 * (i + 1), x + 10, points=90 - 20 * i) for i in range(5)]),
+                Track(tid + 1, [obs(first + 30 + i, x, x + 2 * (i + 1), points=20 + 20 * i) for i in range(5)]
+                      + [obs(first + 35 + k, x, x + 10) for k in range(20)])]
+
+    config = TrackConfig(resume_scans=20, resume_stood=0.3, resume_travel=1.0, resume_stood_observations=5,
+                         resume_observations=3, handover_margin=0.3)
+    tracker = Tracker(config)
+    tracker.tracks = [
+        # by hand: it drove 10 m, stood at x 0-10 (scans 12-16: no travel); hidden, its boxes reach x 2-10 ... 10-10
+        *bus(0, 0.0),
+        # the same, but it drove on at 0.2 m per scan while it was hidden (0.8 m over its last 5 full views): a
+        # parked car's track begins 5 scans after its end within where it was as it ended
+        Track(2, [obs(k, 50.0 - 0.2 * k, 60.0 - 0.2 * k, far=0.5) for k in range(17)]),
+        Track(3, [obs(21 + k, 48.0, 52.0) for k in range(20)]),
+        bus(4, 100.0)[0],  # a bus again, but the track that begins 9 scans after its end lies 1 m beyond where it
+        Track(5, [obs(30 + k, 109.0, 111.0) for k in range(20)]),  # stood (x 100-110, grown by 0.3 m)
+        Track(6, [obs(30 + k, 95.0, 99.0) for k in range(20)]),  # ... and a parked car behind it, 1 m apart
+        *bus(7, 200.0),  # a bus again, but the new track begins 21 scans after its end: too late
+        # a car that waited and left (a track handed over to its mover, 10): nothing ends standing there
+        Track(9, [obs(k, 300.0, 304.5) for k in range(20)]),
+        Track(10, [obs(20 + k, 300.5 + 0.5 * k, 305.0 + 0.5 * k, far=0.5) for k in range(20)]),
+        Track(11, [obs(25 + k, 300.0, 301.0) for k in range(20)]),
+        # a parked car seen through in every scan (a mover by share) that never moved: its boxes travel 0 m (< 1 m)
+        Track(12, [obs(k, 400.0, 404.5, far=0.5) for k in range(20)]),
+        Track(13, [obs(25 + k, 400.0, 404.5) for k in range(20)]),
+    ]
+    tracker.tracks[8].observations = [dataclasses.replace(o, scan=o.scan + 12) for o in tracker.tracks[8].observations]
+    # seen again twice: the track that begins where the first bus's second track ended is it too
+    tracker.tracks.append(Track(14, [obs(60 + k, 0.0, 10.0) for k in range(10)]))
+    movers = tracker.movers()
+    assert movers == {0: SEEN_THROUGH, 2: SEEN_THROUGH, 4: SEEN_THROUGH, 7: SEEN_THROUGH, 10: SEEN_THROUGH,
+                      12: SEEN_THROUGH}
+    movers.update(tracker.handovers(movers))
+    assert movers[9] == WAITED
+    assert tracker.resumptions(movers) == {1: RESUMED, 14: RESUMED}
+    still = Tracker(dataclasses.replace(config, resume_travel=0.0))
+    still.tracks = tracker.tracks
+    assert 13 in still.resumptions(movers)  # without the travel, the parked car would be seen again where it stood
+    assert Tracker(dataclasses.replace(config, resume_scans=0)).resumptions(movers) == {}
+    assert Tracker(dataclasses.replace(config, resume_scans=20)).resumptions({}) == {}
+    with pytest.raises(ConfigError, match="resume_stood"):
+        TrackConfig(resume_stood=float("inf"))
+
+    # Seen again, it is moving in every scan under SemanticKITTI's convention (each box overlaps its first one), and
+    # standing under the instant one: revealed from the rear, its front edge grows while its rear edge stays.
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.offline.autolabel import AutoLabeler, AutolabelResult
+
+    seen_again = Tracker(config)
+    seen_again.tracks = [Track(0, tracker.tracks[1].observations)]
+    result = AutolabelResult("bus", 55, np.repeat(np.eye(4)[None], 55, 0), np.arange(55) * 0.1, seen_again,
+                             {0: RESUMED}, [100] * 55)
+    labeler = AutoLabeler(sensor_preset("hdl64"), AutolabelConfig(shadow_edges=False))
+    assert labeler._moving_ever(result) == {(k, 0) for k in range(30, 55)}
+    assert labeler._moving_now(result) == set()
+
+
 def test_a_track_that_waited_is_moving_where_it_stood_as_it_ended_and_where_it_was_seen_through():
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, AutolabelResult

@@ -45,6 +45,7 @@ from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects, voxel_clusters
 from ros2_mos.offline.tracks import (
     ONLINE_MODEL,
+    RESUMED,
     WAITED,
     Observation,
     TrackConfig,
@@ -226,6 +227,7 @@ class AutoLabeler:
                                                         progress)
         movers = tracker.movers(cue=self.cue_model is not None)
         movers.update(tracker.handovers(movers))
+        movers.update(tracker.resumptions(movers))
         result = AutolabelResult(drive.name, n, poses, stamps, tracker, movers, sizes,
                                  cue_model=self.cue_model.name if self.cue_model is not None else "",
                                  cue_skipped=cue_skipped, odometry_followed=followed, blind_radius=blind)
@@ -458,9 +460,12 @@ class AutoLabeler:
                 continue
             lo = np.array([o.lo[:2] for o in obs]) - cfg.support_margin
             hi = np.array([o.hi[:2] for o in obs]) + cfg.support_margin
-            # A track that waited, then left (Tracker.handovers): where it stood when it ended, too.
+            # A track that waited, then left (Tracker.handovers): where it stood when it ended, too; a mover seen again
+            # where it stood (Tracker.resumptions): where it was first seen again.
             seen = np.array([result.tracker.seen_through(o) for o in obs])
-            evidence = seen | (np.arange(len(obs)) == len(obs) - 1) if evidence == WAITED else seen
+            if evidence in (WAITED, RESUMED):
+                seen[-1 if evidence == WAITED else 0] = True
+            evidence = seen
             overlap = overlap_from_above(lo[:, None, :], hi[:, None, :], lo[None, evidence, :], hi[None, evidence, :])
             out.update((o.scan, o.obj) for o, supported in zip(obs, overlap.any(axis=1)) if supported)
         return out

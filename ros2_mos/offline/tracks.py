@@ -28,6 +28,9 @@ ONLINE_MODEL = "online model"
 #: A track that stood where a mover's track began as it ended (:meth:`Tracker.handovers`): the same object, which
 #: waited, then left; its track broke as it moved off (its cluster split, or its centroid jumped).
 WAITED = "waited, then left"
+#: A track that began where a mover's track ended standing, soon after it ended (:meth:`Tracker.resumptions`): the
+#: same object, seen again after something passed between it and the sensor.
+RESUMED = "seen again where it stood"
 #: How far apart seen-through observations lie (:func:`evidence_travel`).
 EVIDENCE_TRAVEL = ("box", "centroid")
 
@@ -105,13 +108,24 @@ class TrackConfig:
     #: is them, however large (``handover_max_area`` is for clusters that a lone passer-by left): a car and a cyclist
     #: that waited side by side, one cluster, and left together
     handover_filled: bool = True
+    #: scans: a track that begins within this many scans after a mover's track ended standing (its boxes over its last
+    #: ``resume_stood_observations`` full views travelled ``resume_stood`` m or less, and over the whole track
+    #: ``resume_travel`` m or more: it moved, then stood), its first ``resume_observations`` boxes within the box where
+    #: the mover stood (grown by ``handover_margin``), is that mover seen again: something passed between it and the
+    #: sensor, and its track broke (0: off; :meth:`Tracker.resumptions`)
+    resume_scans: int = 20
+    resume_stood: float = 0.3
+    resume_travel: float = 1.0
+    resume_stood_observations: int = 5
+    resume_observations: int = 3
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
 
         check_numbers(self, "autolabel tracks",
                       zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
-                               "handover_travel", "cue_travel", "cue_veto_share", "cue_min_distance"),
+                               "handover_travel", "cue_travel", "cue_veto_share", "cue_min_distance", "resume_scans",
+                               "resume_stood", "resume_travel"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller",
                                    "cue_veto_share"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
@@ -444,6 +458,64 @@ class Tracker:
                     out[a] = WAITED
                     todo.append(a)
         return out
+
+    def resumptions(self, movers: dict[int, str]) -> dict[int, str]:
+        """{track id: RESUMED} for the tracks that are a mover seen again where it stood. A car or bus that stopped
+        beside the road is hidden bit by bit as a truck passes between it and the sensor, and its track ends; when
+        the truck has passed, it is revealed bit by bit where it stood, as a new track that neither moves nor is seen
+        through. Under SemanticKITTI's convention it is moving there too.
+
+        Such a track begins 1 to ``resume_scans`` scans after a mover's track ended (not one that waited before its
+        mover: :meth:`handovers`), and its first ``resume_observations`` boxes lie within the box where the mover
+        stood as it ended (:meth:`_where_it_stood`, grown by ``handover_margin``). The mover stood if its boxes over
+        its last ``resume_stood_observations`` full views (before it was hidden bit by bit) travelled
+        ``resume_stood`` m or less (:func:`evidence_travel`): a car that drove on while hidden is seen again elsewhere,
+        and the parked car it passed, revealed where it drove by, lies beside its box, not within it. It moved before
+        it stood: its boxes over the whole track travelled ``resume_travel`` m or more (a parked car seen through now
+        and then, a mover by its share, never did; a track seen again is its mover's, and needs no travel of its
+        own)."""
+        cfg = self.config
+        if cfg.resume_scans == 0 or not movers:
+            return {}
+        beginning: dict[int, list[Track]] = {}  # first scan -> the tracks that begin there
+        for t in self.tracks:
+            beginning.setdefault(t.observations[0].scan, []).append(t)
+        m = cfg.handover_margin
+        out: dict[int, str] = {}
+        todo = [t for t, evidence in movers.items() if evidence != WAITED]
+        while todo:
+            a = self.tracks[todo.pop()]
+            stood = self._where_it_stood(a)
+            if stood is None or (a.id not in out
+                                 and evidence_travel(a.observations, cfg.evidence_travel) < cfg.resume_travel):
+                continue  # it was still moving as it ended, or it never moved (a parked car seen through now and then)
+            lo, hi = stood[0] - m, stood[1] + m
+            end = a.last.scan
+            for scan in range(end + 1, end + cfg.resume_scans + 1):
+                for b in beginning.get(scan, []):
+                    if b.id in movers or b.id in out:
+                        continue
+                    first = b.observations[:cfg.resume_observations]
+                    if all(bool(np.all(o.lo[:2] >= lo) and np.all(o.hi[:2] <= hi)) for o in first):
+                        out[b.id] = RESUMED
+                        todo.append(b.id)
+        return out
+
+    def _where_it_stood(self, track: Track) -> tuple[np.ndarray, np.ndarray] | None:
+        """The top-view box where ``track`` stood as it ended: the boxes of its last observation and of the ones
+        before it while it was hidden bit by bit (fewer points in each), together; None where its boxes over its last
+        ``resume_stood_observations`` full views (up to the first one of those) travelled more than ``resume_stood``
+        m: it was still moving."""
+        cfg = self.config
+        obs = track.observations
+        start = len(obs) - 1
+        while start > 0 and obs[start - 1].points > obs[start].points:
+            start -= 1
+        full = obs[max(0, start + 1 - cfg.resume_stood_observations): start + 1]
+        if len(full) < min(cfg.resume_stood_observations, 2) or evidence_travel(full) > cfg.resume_stood:
+            return None
+        hidden = obs[start:]
+        return np.min([o.lo[:2] for o in hidden], axis=0), np.max([o.hi[:2] for o in hidden], axis=0)
 
     def _glimpse(self, first: Observation, lo: np.ndarray, hi: np.ndarray, beginning: list[Track],
                  movers: dict[int, str], waited: dict[int, str]) -> tuple[float, int]:
