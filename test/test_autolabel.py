@@ -654,7 +654,16 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
 
 
 def test_a_track_that_begins_where_a_mover_stood_hidden_is_that_mover_seen_again():
-    from ros2_mos.offline.tracks import RESUMED, SEEN_THROUGH, WAITED, Observation, Track, TrackConfig, Tracker
+    from ros2_mos.offline.tracks import (
+        ONLINE_MODEL,
+        RESUMED,
+        SEEN_THROUGH,
+        WAITED,
+        Observation,
+        Track,
+        TrackConfig,
+        Tracker,
+    )
 
     def obs(scan: int, x0: float, x1: float, points: int = 100, far: float = 0.0, y: float = 5.7) -> Observation:
         lo, hi = np.array([x0, y, 0.0]), np.array([x1, y + 0.2, 3.0])
@@ -691,16 +700,20 @@ def test_a_track_that_begins_where_a_mover_stood_hidden_is_that_mover_seen_again
         # a parked car seen through in every scan (a mover by share) that never moved: its boxes travel 0 m (< 1 m)
         Track(12, [obs(k, 400.0, 404.5, far=0.5) for k in range(20)]),
         Track(13, [obs(25 + k, 400.0, 404.5) for k in range(20)]),
+        # seen again twice: the track that begins where the first bus's second track ended is it too
+        Track(14, [obs(60 + k, 0.0, 10.0) for k in range(10)]),
+        # a bus again, but a mover on the online model's word only (its word on a parked car must not spread)
+        *[Track(t.id, [dataclasses.replace(o, near=0.0, far=0.0) for o in t.observations]) for t in bus(15, 500.0)],
     ]
     tracker.tracks[8].observations = [dataclasses.replace(o, scan=o.scan + 12) for o in tracker.tracks[8].observations]
-    # seen again twice: the track that begins where the first bus's second track ended is it too
-    tracker.tracks.append(Track(14, [obs(60 + k, 0.0, 10.0) for k in range(10)]))
     movers = tracker.movers()
     assert movers == {0: SEEN_THROUGH, 2: SEEN_THROUGH, 4: SEEN_THROUGH, 7: SEEN_THROUGH, 10: SEEN_THROUGH,
                       12: SEEN_THROUGH}
     movers.update(tracker.handovers(movers))
     assert movers[9] == WAITED
+    movers[15] = ONLINE_MODEL
     assert tracker.resumptions(movers) == {1: RESUMED, 14: RESUMED}
+    assert tracker.resumptions({**movers, 15: SEEN_THROUGH})[16] == RESUMED  # the same bus, by visibility
     still = Tracker(dataclasses.replace(config, resume_travel=0.0))
     still.tracks = tracker.tracks
     assert 13 in still.resumptions(movers)  # without the travel, the parked car would be seen again where it stood

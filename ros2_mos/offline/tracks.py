@@ -112,7 +112,7 @@ class TrackConfig:
     #: ``resume_stood_observations`` full views travelled ``resume_stood`` m or less, and over the whole track
     #: ``resume_travel`` m or more: it moved, then stood), its first ``resume_observations`` boxes within the box where
     #: the mover stood (grown by ``handover_margin``), is that mover seen again: something passed between it and the
-    #: sensor, and its track broke (0: off; :meth:`Tracker.resumptions`)
+    #: sensor, and its track broke (0: off; only a mover by visibility; :meth:`Tracker.resumptions`)
     resume_scans: int = 20
     resume_stood: float = 0.3
     resume_travel: float = 1.0
@@ -465,9 +465,11 @@ class Tracker:
         the truck has passed, it is revealed bit by bit where it stood, as a new track that neither moves nor is seen
         through. Under SemanticKITTI's convention it is moving there too.
 
-        Such a track begins 1 to ``resume_scans`` scans after a mover's track ended (not one that waited before its
-        mover: :meth:`handovers`), and its first ``resume_observations`` boxes lie within the box where the mover
-        stood as it ended (:meth:`_where_it_stood`, grown by ``handover_margin``). The mover stood if its boxes over
+        Such a track begins 1 to ``resume_scans`` scans after a mover's track ended (one that visibility made a
+        mover: the online model's word on a parked car, seen again, would spread its error; a track that waited
+        before its mover, :meth:`handovers`, did not end standing), and its first ``resume_observations`` boxes lie
+        within the box where the mover stood as it ended (:meth:`_where_it_stood`, grown by ``handover_margin``).
+        The mover stood if its boxes over
         its last ``resume_stood_observations`` full views (before it was hidden bit by bit) travelled
         ``resume_stood`` m or less (:func:`evidence_travel`): a car that drove on while hidden is seen again elsewhere,
         and the parked car it passed, revealed where it drove by, lies beside its box, not within it. It moved before
@@ -482,7 +484,7 @@ class Tracker:
             beginning.setdefault(t.observations[0].scan, []).append(t)
         m = cfg.handover_margin
         out: dict[int, str] = {}
-        todo = [t for t, evidence in movers.items() if evidence != WAITED]
+        todo = [t for t, evidence in movers.items() if evidence == SEEN_THROUGH]
         while todo:
             a = self.tracks[todo.pop()]
             stood = self._where_it_stood(a)
