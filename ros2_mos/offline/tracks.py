@@ -469,10 +469,10 @@ class Tracker:
         mover: the online model's word on a parked car, seen again, would spread its error; a track that waited
         before its mover, :meth:`handovers`, did not end standing), and its first ``resume_observations`` boxes lie
         within the box where the mover stood as it ended (:meth:`_where_it_stood`, grown by ``handover_margin``).
-        The mover stood if its boxes over
-        its last ``resume_stood_observations`` full views (before it was hidden bit by bit) travelled
-        ``resume_stood`` m or less (:func:`evidence_travel`): a car that drove on while hidden is seen again elsewhere,
-        and the parked car it passed, revealed where it drove by, lies beside its box, not within it. It moved before
+        The mover stood if its boxes over its last ``resume_stood_observations`` full views (before it was hidden bit
+        by bit) travelled ``resume_stood`` m or less (:func:`evidence_travel`): a car that drove on while hidden is
+        seen again elsewhere, and the parked car it passed, revealed where it drove by, lies beside its box, not
+        within it. It moved before
         it stood: its boxes over the whole track travelled ``resume_travel`` m or more (a parked car seen through now
         and then, a mover by its share, never did; a track seen again is its mover's, and needs no travel of its
         own)."""
@@ -514,7 +514,8 @@ class Tracker:
         while start > 0 and obs[start - 1].points > obs[start].points:
             start -= 1
         full = obs[max(0, start + 1 - cfg.resume_stood_observations): start + 1]
-        if len(full) < min(cfg.resume_stood_observations, 2) or evidence_travel(full) > cfg.resume_stood:
+        if len(full) < min(cfg.resume_stood_observations, 2) or \
+                evidence_travel(full, cfg.evidence_travel) > cfg.resume_stood:
             return None
         hidden = obs[start:]
         return np.min([o.lo[:2] for o in hidden], axis=0), np.max([o.hi[:2] for o in hidden], axis=0)
