@@ -79,8 +79,7 @@ UNSEEN8_SEEDS = {"traffic_jam": (10401, 10402, 10403, 10404), "narrow_street": (
                  "benchmark": (10421, 10422), "easy": (10431, 10432)}
 SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_SEEDS, "unseen": UNSEEN_SEEDS,
              "unseen2": UNSEEN2_SEEDS, "unseen3": UNSEEN3_SEEDS, "unseen4": UNSEEN4_SEEDS, "unseen5": UNSEEN5_SEEDS,
-             "unseen6": UNSEEN6_SEEDS, "unseen7": UNSEEN7_SEEDS,
-             "unseen8": UNSEEN8_SEEDS}
+             "unseen6": UNSEEN6_SEEDS, "unseen7": UNSEEN7_SEEDS, "unseen8": UNSEEN8_SEEDS}
 
 
 def score_drive(folder: Path, sensor: str, online: bool,

@@ -429,9 +429,7 @@ class Tracker:
             least = cfg.handover_smaller * median_area(a)
             return all(int(t) in movers or int(t) in out or t == a or median_area(int(t)) < least for t in c)
 
-        beginning: dict[int, list[Track]] = {}  # first scan -> the tracks that begin there
-        for t in self.tracks:
-            beginning.setdefault(t.observations[0].scan, []).append(t)
+        beginning = self._beginning()
         todo = list(movers)
         while todo:
             b = self.tracks[todo.pop()]
@@ -472,16 +470,13 @@ class Tracker:
         The mover stood if its boxes over its last ``resume_stood_observations`` full views (before it was hidden bit
         by bit) travelled ``resume_stood`` m or less (:func:`evidence_travel`): a car that drove on while hidden is
         seen again elsewhere, and the parked car it passed, revealed where it drove by, lies beside its box, not
-        within it. It moved before
-        it stood: its boxes over the whole track travelled ``resume_travel`` m or more (a parked car seen through now
-        and then, a mover by its share, never did; a track seen again is its mover's, and needs no travel of its
-        own)."""
+        within it. It moved before it stood: its boxes over the whole track travelled ``resume_travel`` m or more (a
+        parked car seen through now and then, a mover by its share, never did; a track seen again is its mover's,
+        and needs no travel of its own)."""
         cfg = self.config
         if cfg.resume_scans == 0 or not movers:
             return {}
-        beginning: dict[int, list[Track]] = {}  # first scan -> the tracks that begin there
-        for t in self.tracks:
-            beginning.setdefault(t.observations[0].scan, []).append(t)
+        beginning = self._beginning()
         m = cfg.handover_margin
         out: dict[int, str] = {}
         todo = [t for t, evidence in movers.items() if evidence == SEEN_THROUGH]
@@ -502,6 +497,13 @@ class Tracker:
                         out[b.id] = RESUMED
                         todo.append(b.id)
         return out
+
+    def _beginning(self) -> dict[int, list[Track]]:
+        """First scan -> the tracks that begin in it."""
+        beginning: dict[int, list[Track]] = {}
+        for t in self.tracks:
+            beginning.setdefault(t.observations[0].scan, []).append(t)
+        return beginning
 
     def _where_it_stood(self, track: Track) -> tuple[np.ndarray, np.ndarray] | None:
         """The top-view box where ``track`` stood as it ended: the boxes of its last observation and of the ones
