@@ -23,6 +23,7 @@ from ros2_mos.offline.objects import (
     ObjectConfig,
     VehicleReturns,
     attach_below,
+    attach_over,
     attach_to_nearest,
     blind_floor,
     find_objects,
@@ -161,6 +162,52 @@ def test_a_column_under_an_object_joins_it_ring_by_ring_and_the_road_at_its_foot
     # At 45 degrees the road in row 6 would be steep enough, but it continues the road below it (row 7): not joined.
     assert joined(45.0, points) == [0, 0, 0, -1, -1]
     assert joined(45.0, points[:4]) == [0, 0, 0, 0]  # nothing below it: it joins
+
+
+def test_a_stack_of_rings_over_an_object_joins_it_and_a_crown_far_above_it_does_not():
+    sensor = SensorConfig("column8", 8, 360, 3.0, -25.0, 0.0, 80.0)  # rows 3.5 degrees apart, as above
+    pitch = np.radians(3.0 - 3.5 * (np.arange(8) + 0.5))
+
+    def at(row: int, x: float) -> list[float]:
+        return [x, 0.0, x * np.tan(pitch[row])]
+
+    # A van's side 10 m ahead: its ring in row 5 is on the object, rows 4 and 3 above it on the same face (0.62 and
+    # 0.66 m higher each; two rows' spacing at 10 m is 2 tan 3.5 * 10 = 1.22 m); a crown in row 0, 1.9 m over
+    # row 3 (rows 1 and 2 empty); a ring in row 4 but 2 m farther (0.2 m up over 2 m: no face).
+    van = np.array([at(5, 10.0), at(4, 10.0), at(3, 10.0), at(0, 10.0)], np.float32)
+    assert pixel_index(van, sensor).v.tolist() == [5, 4, 3, 0]
+
+    def joined(points: np.ndarray, rows: float) -> list[int]:
+        point_object = np.array([0] + [-1] * (len(points) - 1), np.int32)
+        attached = attach_over(points, np.arange(1, len(points)), point_object, sensor, 70.0, rows)
+        assert attached.tolist() == [False] + [o >= 0 for o in point_object[1:]]
+        return point_object.tolist()
+
+    assert joined(van, 2.0) == [0, 0, 0, -1]  # ring by ring from the bottom; the crown rises too far
+    assert joined(van, 4.0) == [0, 0, 0, 0]  # (with four rows' spacing allowed, 2.44 m, it would join)
+    assert joined(np.array([at(5, 10.0), at(4, 12.0)], np.float32), 2.0) == [0, -1]
+
+
+def test_find_objects_joins_a_vans_upper_ring_that_is_a_cluster_of_its_own():
+    # A VLP-16 1.73 m up, a van's side 30 m ahead (1.9 m wide): rows 7 and 8 meet it 2.22 and 1.24 m above the road,
+    # 0.98 m apart: two clusters of 0.4 m voxels. The lower ring is an object; the upper one stands 2.22 m off the
+    # ground (max_bottom 1.5) and is none: it joins the object under it in its columns, by label.
+    sensor = SensorConfig("vlp16", 16, 1024, 15.0, -15.0, 0.0, 100.0)
+    elevation = np.radians(15.0 - 30.0 / 16 * (np.array([7, 8]) + 0.5))
+    azimuth = np.radians(np.arange(-1.8, 1.85, 360 / 1024))
+    y = 30.0 * np.tan(azimuth)
+    van = np.vstack([np.column_stack([np.full(len(y), 30.0), y, np.hypot(30.0, y) * np.tan(e)]) for e in elevation])
+    gx, gy = np.meshgrid(np.arange(4.0, 29.0, 0.5), np.arange(-8.0, 8.0, 0.5))
+    road = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, -1.73)])
+    points = np.vstack([van, road]).astype(np.float32)
+    n = len(y)
+    assert pixel_index(points[:2 * n], sensor).v.tolist() == [7] * n + [8] * n
+    found = find_objects(points, sensor=sensor)
+    upper, lower = found.point_object[:n], found.point_object[n:2 * n]
+    assert (lower >= 0).all() and (upper == lower).all() and found.attached[:n].all()
+    assert not found.attached[n:2 * n].any() and found.counts.sum() == n  # by label: not the object's own points
+    alone = find_objects(points, ObjectConfig(attach_raised=False), sensor=sensor)
+    assert (alone.point_object[:n] == -1).all() and (alone.point_object[n:2 * n] >= 0).all()
 
 
 def test_in_the_blind_spot_the_ground_is_the_plane_fitted_beyond_it():

@@ -91,6 +91,13 @@ class ObjectConfig:
     #: beyond, the plane is the ground (:func:`blind_floor`; with ``sensor`` only)
     blind_floor: bool = True
     blind_ring: float = 6.0
+    #: A point of a cluster too high off the ground to be an object (``max_bottom``) joins the object of the next
+    #: return below it in its range-image column where the two lie on a surface ``attach_steep`` steep and at most
+    #: ``raised_rows`` rows' spacing apart at that range (with ``sensor`` only): a sparse sensor's rings on a van's
+    #: or a bus's side lie so far apart that the upper ones are clusters of their own, up in the air; a tree crown or
+    #: an awning over a car lies farther above it
+    attach_raised: bool = True
+    raised_rows: float = 2.0
 
     def __post_init__(self) -> None:
         check_numbers(self, "autolabel objects",
@@ -359,6 +366,9 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
         # down to the ground: in a blind spot the object's lowest ring is the "ground"
         column = (loose | low) & (point_object < 0)
         attached |= attach_below(points, np.flatnonzero(column), point_object, sensor, config.attach_steep)
+    if sensor is not None and config.attach_raised and config.attach_steep > 0:
+        raised = candidate[((bottom > config.max_bottom) & ~good)[cluster]]
+        attached |= attach_over(points, raised, point_object, sensor, config.attach_steep, config.raised_rows)
     return ScanObjects(point_object, counts[good], attached, height)
 
 
@@ -419,6 +429,39 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
         on_ground = (below >= 0) & (step <= np.minimum(GROUND_STEP + GROUND_GRADE * apart, gentle_slope * apart))
         join = on_face & ~on_ground
         point_object[point[join]] = point_object[above[join]]
+        attached[point[join]] = True
+    return attached
+
+
+def attach_over(points: np.ndarray, raised: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
+                steep: float, rows: float) -> np.ndarray:
+    """Give each of the points ``raised`` (indices; on no object) the object id of the next return below it in its
+    range-image column where that return is on an object, the point rises over it, the two lie on a surface at
+    least ``steep`` degrees steep and the rise is at most ``rows`` times the spacing of the sensor's rows at the
+    point's horizontal range. Row by row from the bottom, so that a stack of rings over an object joins it ring by
+    ring. Returns which points were given one."""
+    attached = np.zeros(len(points), bool)
+    if len(raised) == 0 or not (point_object >= 0).any():
+        return attached
+    image = closest_point_image(points, sensor)
+    is_raised = np.zeros(len(points), bool)
+    is_raised[raised] = True
+    horizontal = np.hypot(points[:, 0], points[:, 1])
+    z = points[:, 2]
+    steep_slope, row_slope = np.tan(np.radians(steep)), rows * np.tan(sensor.fov / sensor.height)
+    for v in range(sensor.height - 2, -1, -1):
+        cols = np.flatnonzero(image[v] >= 0)
+        cols = cols[is_raised[image[v, cols]]]
+        if len(cols) == 0:
+            continue
+        point, below = image[v, cols], _next_return(image, v, cols, 1)
+        has = below >= 0
+        point, below = point[has], below[has]
+        rise = z[point] - z[below]
+        join = ((point_object[below] >= 0) & (rise > 0)
+                & (rise >= steep_slope * np.abs(horizontal[point] - horizontal[below]))
+                & (rise <= row_slope * horizontal[point]))
+        point_object[point[join]] = point_object[below[join]]
         attached[point[join]] = True
     return attached
 
