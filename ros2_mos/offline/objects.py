@@ -11,9 +11,10 @@ with enough points. Points on no object that belong to one join it by label (the
 its evidence): the low ones (wheels, feet, a car's lowest ring), within ``ground_height`` of the ground, and the
 fragments too small or flat to be objects, where an object's point lies within ``attach_distance`` metres of them
 seen from above; and, given the sensor, loose points under an object's steep face in their range-image column
-(:func:`attach_below`). Where the sensor's lowest beam cannot reach the ground, the ground is at most the plane
-fitted just beyond (:func:`blind_floor`, ``blind_floor``). A cluster longer than ``max_length`` (cars queueing
-bumper to bumper) is cut again with half-size voxels.
+(:func:`attach_below`), and points of clusters too high off the ground to be objects over an object's steep face in
+their column (:func:`attach_over`: a sparse sensor's upper rings on a van). Where the sensor's lowest beam cannot
+reach the ground, the ground is at most the plane fitted just beyond (:func:`blind_floor`, ``blind_floor``). A
+cluster longer than ``max_length`` (cars queueing bumper to bumper) is cut again with half-size voxels.
 """
 
 from __future__ import annotations
