@@ -19,6 +19,7 @@ cluster longer than ``max_length`` (cars queueing bumper to bumper) is cut again
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -369,7 +370,8 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
         attached |= attach_below(points, np.flatnonzero(column), point_object, sensor, config.attach_steep)
     if sensor is not None and config.attach_raised and config.attach_steep > 0:
         raised = candidate[((bottom > config.max_bottom) & ~good)[cluster]]
-        attached |= attach_over(points, raised, point_object, sensor, config.attach_steep, config.raised_rows)
+        if len(raised):
+            attached |= attach_over(points, raised, point_object, sensor, config.attach_steep, config.raised_rows)
     return ScanObjects(point_object, counts[good], attached, height)
 
 
@@ -397,6 +399,23 @@ def _next_return(image: np.ndarray, v: int, cols: np.ndarray, step: int) -> np.n
     return out
 
 
+def _column_rows(points: np.ndarray, which: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
+                 rows: range) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """Per row v of the range image, in the order of ``rows``: (v, the columns whose closest return in row v is one
+    of the points ``which``, the image of closest returns); nothing where ``which`` is empty or no point is on an
+    object."""
+    if len(which) == 0 or not (point_object >= 0).any():
+        return
+    image = closest_point_image(points, sensor)
+    chosen = np.zeros(len(points), bool)
+    chosen[which] = True
+    for v in rows:
+        cols = np.flatnonzero(image[v] >= 0)
+        cols = cols[chosen[image[v, cols]]]
+        if len(cols):
+            yield v, cols, image
+
+
 def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
                  steep: float) -> np.ndarray:
     """Give each of the points ``loose`` (indices; on no object) the object id of the next return above it in its
@@ -406,19 +425,10 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
     row from the top, so that a column of loose points under an object joins it ring by ring. Returns which
     points were given one."""
     attached = np.zeros(len(points), bool)
-    if len(loose) == 0 or not (point_object >= 0).any():
-        return attached
-    image = closest_point_image(points, sensor)
-    is_loose = np.zeros(len(points), bool)
-    is_loose[loose] = True
     horizontal = np.hypot(points[:, 0], points[:, 1])
     z = points[:, 2]
     steep_slope, gentle_slope = np.tan(np.radians(steep)), np.tan(np.radians(GROUND_STEEPEST))
-    for v in range(1, sensor.height):
-        cols = np.flatnonzero(image[v] >= 0)
-        cols = cols[is_loose[image[v, cols]]]
-        if len(cols) == 0:
-            continue
+    for v, cols, image in _column_rows(points, loose, point_object, sensor, range(1, sensor.height)):
         point, above, below = image[v, cols], _next_return(image, v, cols, -1), _next_return(image, v, cols, 1)
         has = above >= 0
         point, above, below = point[has], above[has], below[has]
@@ -442,19 +452,10 @@ def attach_over(points: np.ndarray, raised: np.ndarray, point_object: np.ndarray
     point's horizontal range. Row by row from the bottom, so that a stack of rings over an object joins it ring by
     ring. Returns which points were given one."""
     attached = np.zeros(len(points), bool)
-    if len(raised) == 0 or not (point_object >= 0).any():
-        return attached
-    image = closest_point_image(points, sensor)
-    is_raised = np.zeros(len(points), bool)
-    is_raised[raised] = True
     horizontal = np.hypot(points[:, 0], points[:, 1])
     z = points[:, 2]
     steep_slope, row_slope = np.tan(np.radians(steep)), rows * np.tan(sensor.fov / sensor.height)
-    for v in range(sensor.height - 2, -1, -1):
-        cols = np.flatnonzero(image[v] >= 0)
-        cols = cols[is_raised[image[v, cols]]]
-        if len(cols) == 0:
-            continue
+    for v, cols, image in _column_rows(points, raised, point_object, sensor, range(sensor.height - 2, -1, -1)):
         point, below = image[v, cols], _next_return(image, v, cols, 1)
         has = below >= 0
         point, below = point[has], below[has]
