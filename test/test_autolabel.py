@@ -171,8 +171,8 @@ def test_a_stack_of_rings_over_an_object_joins_it_and_a_crown_far_above_it_does_
     def at(row: int, x: float) -> list[float]:
         return [x, 0.0, x * np.tan(pitch[row])]
 
-    # A van's side 10 m ahead: its ring in row 5 is on the object, rows 4 and 3 above it on the same face (0.62 and
-    # 0.66 m higher each; two rows' spacing at 10 m is 2 tan 3.5 * 10 = 1.22 m); a crown in row 0, 1.9 m over
+    # A van's side 10 m ahead: its ring in row 5 is on the object, rows 4 and 3 above it on the same face (0.65 and
+    # 0.63 m higher; two rows' spacing at 10 m is 2 tan 3.5 * 10 = 1.22 m); a crown in row 0, 1.85 m over
     # row 3 (rows 1 and 2 empty); a ring in row 4 but 2 m farther (0.2 m up over 2 m: no face).
     van = np.array([at(5, 10.0), at(4, 10.0), at(3, 10.0), at(0, 10.0)], np.float32)
     assert pixel_index(van, sensor).v.tolist() == [5, 4, 3, 0]
