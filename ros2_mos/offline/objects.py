@@ -364,14 +364,15 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
         fragment = (counts < config.min_points) | ((tall < config.min_height) & (top < config.flat_top))
         loose[candidate[fragment[cluster]]] = True
     attached = attach_to_nearest(points, np.flatnonzero(loose), point_object, config.attach_distance)
-    if sensor is not None and config.attach_steep > 0:
+    if sensor is not None and config.attach_steep > 0 and (point_object >= 0).any():
+        image = closest_point_image(points, sensor)  # one range image for both column rules
         # down to the ground: in a blind spot the object's lowest ring is the "ground"
         column = (loose | low) & (point_object < 0)
-        attached |= attach_below(points, np.flatnonzero(column), point_object, sensor, config.attach_steep)
-    if sensor is not None and config.attach_raised and config.attach_steep > 0:
-        raised = candidate[((bottom > config.max_bottom) & ~good)[cluster]]
-        if len(raised):
-            attached |= attach_over(points, raised, point_object, sensor, config.attach_steep, config.raised_rows)
+        attached |= attach_below(points, np.flatnonzero(column), point_object, sensor, config.attach_steep, image)
+        if config.attach_raised:
+            raised = candidate[((bottom > config.max_bottom) & ~good)[cluster]]
+            attached |= attach_over(points, raised, point_object, sensor, config.attach_steep, config.raised_rows,
+                                    image)
     return ScanObjects(point_object, counts[good], attached, height)
 
 
@@ -400,13 +401,14 @@ def _next_return(image: np.ndarray, v: int, cols: np.ndarray, step: int) -> np.n
 
 
 def _column_rows(points: np.ndarray, which: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
-                 rows: range) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+                 rows: range, image: np.ndarray | None = None) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """Per row v of the range image, in the order of ``rows``: (v, the columns whose closest return in row v is one
-    of the points ``which``, the image of closest returns); nothing where ``which`` is empty or no point is on an
-    object."""
+    of the points ``which``, the image of closest returns: ``image`` where given, else computed); nothing where
+    ``which`` is empty or no point is on an object."""
     if len(which) == 0 or not (point_object >= 0).any():
         return
-    image = closest_point_image(points, sensor)
+    if image is None:
+        image = closest_point_image(points, sensor)
     chosen = np.zeros(len(points), bool)
     chosen[which] = True
     for v in rows:
@@ -417,18 +419,18 @@ def _column_rows(points: np.ndarray, which: np.ndarray, point_object: np.ndarray
 
 
 def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
-                 steep: float) -> np.ndarray:
+                 steep: float, image: np.ndarray | None = None) -> np.ndarray:
     """Give each of the points ``loose`` (indices; on no object) the object id of the next return above it in its
     range-image column where that return is on an object and the two lie on a surface at least ``steep`` degrees
     steep (height difference over horizontal distance), unless the point continues the ground of the return below
     it (:data:`GROUND_STEP`, :data:`GROUND_GRADE`, :data:`GROUND_STEEPEST`: the road at the foot of a car). Row by
     row from the top, so that a column of loose points under an object joins it ring by ring. Returns which
-    points were given one."""
+    points were given one. ``image``: the points' :func:`closest_point_image`, where the caller has it."""
     attached = np.zeros(len(points), bool)
     horizontal = np.hypot(points[:, 0], points[:, 1])
     z = points[:, 2]
     steep_slope, gentle_slope = np.tan(np.radians(steep)), np.tan(np.radians(GROUND_STEEPEST))
-    for v, cols, image in _column_rows(points, loose, point_object, sensor, range(1, sensor.height)):
+    for v, cols, image in _column_rows(points, loose, point_object, sensor, range(1, sensor.height), image):
         point, above, below = image[v, cols], _next_return(image, v, cols, -1), _next_return(image, v, cols, 1)
         has = above >= 0
         point, above, below = point[has], above[has], below[has]
@@ -445,17 +447,18 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
 
 
 def attach_over(points: np.ndarray, raised: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
-                steep: float, rows: float) -> np.ndarray:
+                steep: float, rows: float, image: np.ndarray | None = None) -> np.ndarray:
     """Give each of the points ``raised`` (indices; on no object) the object id of the next return below it in its
     range-image column where that return is on an object, the point rises over it, the two lie on a surface at
     least ``steep`` degrees steep and the rise is at most ``rows`` times the spacing of the sensor's rows at the
     point's horizontal range. Row by row from the bottom, so that a stack of rings over an object joins it ring by
-    ring. Returns which points were given one."""
+    ring. Returns which points were given one. ``image`` as for :func:`attach_below`."""
     attached = np.zeros(len(points), bool)
     horizontal = np.hypot(points[:, 0], points[:, 1])
     z = points[:, 2]
     steep_slope, row_slope = np.tan(np.radians(steep)), rows * np.tan(sensor.fov / sensor.height)
-    for v, cols, image in _column_rows(points, raised, point_object, sensor, range(sensor.height - 2, -1, -1)):
+    for v, cols, image in _column_rows(points, raised, point_object, sensor, range(sensor.height - 2, -1, -1),
+                                       image):
         point, below = image[v, cols], _next_return(image, v, cols, 1)
         has = below >= 0
         point, below = point[has], below[has]
