@@ -462,11 +462,10 @@ class AutoLabeler:
             hi = np.array([o.hi[:2] for o in obs]) + cfg.support_margin
             # A track that waited, then left (Tracker.handovers): where it stood when it ended, too; a mover seen again
             # where it stood (Tracker.resumptions): where it was first seen again.
-            seen = np.array([result.tracker.seen_through(o) for o in obs])
+            support = np.array([result.tracker.seen_through(o) for o in obs])
             if evidence in (WAITED, RESUMED):
-                seen[-1 if evidence == WAITED else 0] = True
-            evidence = seen
-            overlap = overlap_from_above(lo[:, None, :], hi[:, None, :], lo[None, evidence, :], hi[None, evidence, :])
+                support[-1 if evidence == WAITED else 0] = True
+            overlap = overlap_from_above(lo[:, None, :], hi[:, None, :], lo[None, support, :], hi[None, support, :])
             out.update((o.scan, o.obj) for o, supported in zip(obs, overlap.any(axis=1)) if supported)
         return out
 
