@@ -17,7 +17,7 @@ from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.core.projection import pixel_index
 from ros2_mos.io.labels import instance_ids, semantic_ids
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence
-from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, scan_labels
+from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, label_objects, scan_labels
 from ros2_mos.offline.drives import FolderDrive, _scan
 from ros2_mos.offline.objects import (
     ObjectConfig,
@@ -236,6 +236,25 @@ def test_in_the_blind_spot_the_ground_is_the_plane_fitted_beyond_it():
     assert (without.point_object[6000:] >= 0).mean() < 0.5
 
 
+def test_points_on_no_object_that_the_online_model_labels_moving_take_the_nearest_object_s_label_within_reach():
+    points = np.array([
+        [10.05, 0.05, 0.5], [10.05, 1.05, 0.5],  # object 0
+        [20.05, 0.05, 0.5],  # object 1
+        [11.55, 0.05, -1.5],  # moving, 1.5 m from object 0 seen from above (1.5 m lower): object 0
+        [11.55, 1.05, 0.0],  # as close, labelled static: none
+        [13.05, 0.05, 0.0],  # moving, 3.0 m from object 0 and 7.0 m from object 1: none
+        [18.55, 0.05, 0.0],  # moving, 1.5 m from object 1, 8.5 m from object 0: object 1
+        [15.05, 0.05, 0.0],  # moving, 5.0 m from both: none
+    ], np.float32)
+    point_object = np.array([0, 0, 1, -1, -1, -1, -1, -1], np.int32)
+    moving = np.array([False, True, True, True, False, True, True, True])
+    out = label_objects(points, point_object, moving, 2.0)
+    assert out.tolist() == [0, 0, 1, 0, -1, -1, 1, -1]
+    assert point_object.tolist() == [0, 0, 1, -1, -1, -1, -1, -1]  # the objects themselves stay as they were
+    assert label_objects(points, point_object, moving, 4.0).tolist() == [0, 0, 1, 0, -1, 0, 1, -1]  # 3.0 m, not 5.0
+    assert label_objects(points, point_object, np.zeros(8, bool), 2.0).tolist() == point_object.tolist()
+
+
 def test_neighbourhood_min_takes_rows_pm1_and_columns_pm2_with_wrap():
     img = np.full((3, 8), 10.0, np.float32)
     img[1, 0] = 2.0
@@ -256,7 +275,9 @@ def test_objects_keep_a_car_and_drop_a_building_and_the_ground():
     assert (found.point_object[:4000] == -1).mean() > 0.99  # ground
     assert (found.point_object[4800:4850] == next(iter(car_ids))).mean() > 0.9  # wheels attached under the car
     assert found.attached[4800:4850].mean() > 0.9 and not found.attached[4000:4800].any()
-    assert (found.point_object[4850:] == -1).all()  # 12 m high: not an object
+    assert (found.point_object[4850:] == -1).all()  # 12 m high: not an object ...
+    wall = pts[4850:, 2] > 1.0  # (its foot lies in the ground and in pieces of its own)
+    assert found.structure[4850:][wall].all() and not found.structure[:4850].any()  # ... but a structure (a wall)
     # A stray return 50 km away (a reflection, a bad driver) changes nothing and is ground: the ground grid covers
     # only what lies within max_range of the sensor (with the stray in it, the grid would be 50 km long).
     stray = find_objects(np.vstack([pts, [[50_000.0, 0.0, 3.0]]]).astype(np.float32))
@@ -331,7 +352,8 @@ def test_config_is_checked():
     for bad in ({"near_offsets": (0,)}, {"instant_seen_through": 0.0}, {"instant_seen_through": float("nan")},
                 {"instant_seen_through": 1.5}, {"instant_speed": float("inf")}, {"support_margin": -0.1},
                 {"odometry_margin": float("nan")}, {"odometry_margin_share": -0.01}, {"odometry_prefer": "b"},
-                {"instant_motion": "speed"}):
+                {"instant_motion": "speed"}, {"cue_attach": -1.0}, {"cue_attach": float("nan")},
+                {"cue_attach": float("inf")}):
         with pytest.raises(ConfigError):
             AutolabelConfig(**bad)
     for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
@@ -342,7 +364,8 @@ def test_config_is_checked():
         with pytest.raises(ConfigError):
             cls(**bad)
     # zero where zero means something
-    AutolabelConfig(support_margin=0.0, objects=ObjectConfig(attach_above=0.0, ego_radius=0.0, attach_steep=0.0))
+    AutolabelConfig(support_margin=0.0, cue_attach=0.0,
+                    objects=ObjectConfig(attach_above=0.0, ego_radius=0.0, attach_steep=0.0))
 
 
 def test_box_shift_counts_only_what_both_edges_agree_on():
@@ -949,6 +972,31 @@ def test_autolabel_end_to_end_on_a_simulated_drive(jam, tmp_path, convention):
     assert result.exit_code == 0, result.output
     iou = float(next(line.split()[1] for line in result.output.splitlines() if line.startswith("       all")))
     assert iou > 55.0, result.output  # 30 scans: less past and future than a real drive has
+
+
+def test_points_on_no_object_near_a_mover_that_the_online_model_labels_moving_are_moving_too(jam, tmp_path):
+    from ros2_mos.core.config import sensor_preset
+
+    drive = FolderDrive(jam / "sequences" / "00")
+    runs = {}
+    for reach in (0.0, 2.0):
+        work = tmp_path / str(reach)
+        work.mkdir()
+        labeler = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(cue_attach=reach))
+        runs[reach] = labeler, labeler.label(drive, work), work
+    added = 0
+    for k, scan in enumerate(drive):
+        labels = {reach: scan_labels(*runs[reach], k, "instant") for reach in runs}
+        assert not (labels[0.0] & ~labels[2.0]).any()  # it only adds
+        new = np.flatnonzero(labels[2.0] & ~labels[0.0])
+        added += len(new)
+        objects = np.load(runs[0.0][2] / f"{k:06d}.npy")
+        assert (objects[new] < 0).all()  # points on no object, ...
+        moving = scan.points[labels[0.0], :2]
+        if len(new):  # ... each within 2 m of a moving point, seen from above
+            gap = np.linalg.norm(scan.points[new, None, :2] - moving[None], axis=-1).min(axis=1)
+            assert gap.max() <= 2.0 + 0.15  # (distances between 0.1 m cells)
+    assert added > 0
 
 
 def test_kiss_icp_runs_backwards_too_over_clouds_it_keeps_only_while_it_needs_them(jam, tmp_path, monkeypatch):

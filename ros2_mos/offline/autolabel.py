@@ -11,8 +11,9 @@ The steps (:meth:`AutoLabeler.label`), each a stage built once:
    images of scans before and after it (:mod:`~ros2_mos.offline.visibility`): where those scans saw through the
    place the object occupies now, it moved. Scans 5 or more apart are seen from their pose registered to the scan
    (:mod:`~ros2_mos.offline.viewpoints`): KISS-ICP's drifts over seconds. The online model (the one shipped for
-   the sensor) labels each scan too, with these poses: a cue for what is never seen through. Per scan only the
-   points' object ids go to disk, so memory stays bounded by the window, not by the drive.
+   the sensor) labels each scan too, with these poses: a cue for what is never seen through, and for the points on
+   no object that belong to one (``AutolabelConfig.cue_attach``). Per scan only the points' object ids go to disk,
+   so memory stays bounded by the window, not by the drive.
 3. **Tracks** through the drive (:mod:`~ros2_mos.offline.tracks`): a track with enough seen-through observations is a
    mover; so is one that the online model labels moving often enough (cars queueing in a jam).
 4. **Labels**: under SemanticKITTI's convention every point of a mover is moving in every scan in which it is seen
@@ -42,7 +43,14 @@ from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_conve
 from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.offline.drives import Drive
-from ros2_mos.offline.objects import ObjectConfig, VehicleReturns, check_numbers, find_objects, voxel_clusters
+from ros2_mos.offline.objects import (
+    ObjectConfig,
+    VehicleReturns,
+    attach_to_nearest,
+    check_numbers,
+    find_objects,
+    voxel_clusters,
+)
 from ros2_mos.offline.tracks import (
     ONLINE_MODEL,
     RESUMED,
@@ -119,6 +127,11 @@ class AutolabelConfig:
     #: The online model (the one shipped for the sensor) labels each scan too, with autolabel's poses: a track that
     #: visibility does not make a mover is one when the model labels it moving often enough (``TrackConfig.cue_share``).
     online_cue: bool = True
+    #: m: a point on no object that the online model labels moving takes the label of the nearest object with a point
+    #: this close, seen from above (0: none), unless it lies on the ground (``objects.attach_above``) or on a cluster
+    #: too long or too tall to be an object (a wall): the pieces of a mover that are no object (a sparse sensor's
+    #: lowest ring, its upper rings, a few returns apart from the rest) move with it
+    cue_attach: float = 2.0
     #: An observation of a mover that moves now (the instant rules: seen through by a near scan, or its box
     #: travelling) has moved, so it is moving under SemanticKITTI's convention too, though its box overlaps no
     #: seen-through one: a car driving ahead at the sensor's speed hides its next place, so its last scans have no
@@ -135,8 +148,8 @@ class AutolabelConfig:
         if self.instant_motion not in INSTANT_MOTION:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
-        check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin", "split_voxel", "odometry_margin",
-                                                      "odometry_margin_share"),
+        check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin", "split_voxel", "cue_attach",
+                                                  "odometry_margin", "odometry_margin_share"),
                       at_most_one=("instant_seen_through",))
 
     @property
@@ -359,9 +372,10 @@ class AutoLabeler:
     def _observe(self, k: int, points: np.ndarray, pose: np.ndarray, vehicle: np.ndarray, seen: dict[int, SeenScan],
                  pairs: PairRegistration,
                  labelled: np.ndarray | None = None) -> tuple[np.ndarray, list[Observation], float]:
-        """Scan k's objects (per point ids; none on the ``vehicle``'s cells), one observation per object, each
-        scan of the window seen from the pose ``pairs`` refined for it where it did (``labelled``: the online
-        model's moving labels of the scan's points, for the cue), and the scan's :func:`blind_radius`."""
+        """Scan k's objects (per point the object whose label it takes, :func:`label_objects`; none on the
+        ``vehicle``'s cells), one observation per object, each scan of the window seen from the pose ``pairs`` refined
+        for it where it did (``labelled``: the online model's moving labels of the scan's points, for the cue), and
+        the scan's :func:`blind_radius`."""
         cfg = self.config
         found = find_objects(points, cfg.objects, vehicle, self.sensor)
         on_object = np.flatnonzero((found.point_object >= 0) & ~found.attached)
@@ -403,6 +417,12 @@ class AutoLabeler:
         observations = [Observation(k, j, centroids[j], int(counts[j]), lo[j], hi[j], float(near[j]), float(far[j]),
                                     float(online[j]), j >= found.n_objects, float(distance[j]), reach[j])
                         for j in range(n_objects)]
+        if labelled is not None and cfg.cue_attach > 0:
+            # Not on the ground or a wall: the model's moving labels bleed into the road around a mover and the wall
+            # behind a pedestrian
+            above = found.height_above_ground > cfg.objects.attach_above
+            point_object = label_objects(points, point_object, (labelled > 0) & above & ~found.structure,
+                                         cfg.cue_attach)
         return point_object, observations, blind_radius(ranges)
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
@@ -562,6 +582,17 @@ def split_seen_apart(world: np.ndarray, obj: np.ndarray, seen: np.ndarray, n_obj
         out[a] = n_objects
         n_objects += 1
     return out, n_objects
+
+
+def label_objects(points: np.ndarray, point_object: np.ndarray, labelled_moving: np.ndarray,
+                  reach: float) -> np.ndarray:
+    """Per point, the object whose label it takes: its own (``point_object``), or for a point on no object that the
+    online model labelled moving (``labelled_moving``), the nearest object with a point within ``reach`` m of it seen
+    from above (:func:`~ros2_mos.offline.objects.attach_to_nearest`); -1 for none. The objects' evidence and tracks
+    do not change."""
+    out = point_object.copy()
+    attach_to_nearest(points, np.flatnonzero((point_object < 0) & labelled_moving), out, reach)
+    return out
 
 
 def scan_labels(labeler: AutoLabeler, result: AutolabelResult, workdir: Path, scan: int,

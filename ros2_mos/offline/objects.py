@@ -117,6 +117,8 @@ class ScanObjects:
     counts: np.ndarray  # (K,) int64, the object's own points (not the attached ones)
     attached: np.ndarray  # (N,) bool: a low point that takes its object's label
     height_above_ground: np.ndarray  # (N,) float32
+    #: (N,) bool: a point of a cluster too long or too tall to be an object (a wall, a hedge, a row of trees)
+    structure: np.ndarray
 
     @property
     def n_objects(self) -> int:
@@ -373,7 +375,9 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
             raised = candidate[((bottom > config.max_bottom) & ~good)[cluster]]
             attached |= attach_over(points, raised, point_object, sensor, config.attach_steep, config.raised_rows,
                                     image)
-    return ScanObjects(point_object, counts[good], attached, height)
+    structure = np.zeros(n, bool)
+    structure[candidate] = ((length > config.max_length) | (tall > config.max_height))[cluster]
+    return ScanObjects(point_object, counts[good], attached, height, structure)
 
 
 #: :func:`attach_below` looks this many rows up (and down) a column for the next ring (a VLP-32C's beams are spread
