@@ -128,9 +128,10 @@ class AutolabelConfig:
     #: visibility does not make a mover is one when the model labels it moving often enough (``TrackConfig.cue_share``).
     online_cue: bool = True
     #: m: a point on no object that the online model labels moving takes the label of the nearest object with a point
-    #: this close, seen from above (0: none), unless it lies on the ground (``objects.attach_above``) or on a cluster
-    #: too long or too tall to be an object (a wall): the pieces of a mover that are no object (a sparse sensor's
-    #: lowest ring, its upper rings, a few returns apart from the rest) move with it
+    #: this close, seen from above (0: none), where it stands clear of the ground (``objects.ground_height``) and
+    #: on no cluster too long or too tall to be an object (a wall): the pieces of a mover too small, too flat or too
+    #: high off the ground to be objects (a sparse sensor's rings on a van) move with it. Not the points nearer the
+    #: ground: on the real drives those are road rings in front of a car, 0.1-0.2 m over the lowest point nearby.
     cue_attach: float = 2.0
     #: An observation of a mover that moves now (the instant rules: seen through by a near scan, or its box
     #: travelling) has moved, so it is moving under SemanticKITTI's convention too, though its box overlaps no
@@ -418,10 +419,10 @@ class AutoLabeler:
                                     float(online[j]), j >= found.n_objects, float(distance[j]), reach[j])
                         for j in range(n_objects)]
         if labelled is not None and cfg.cue_attach > 0:
-            # Not on the ground or a wall: the model's moving labels bleed into the road around a mover and the wall
-            # behind a pedestrian
-            above = found.height_above_ground > cfg.objects.attach_above
-            point_object = label_objects(points, point_object, (labelled > 0) & above & ~found.structure,
+            # Clear of the ground and on no wall: the model's moving labels bleed into the road around a mover and
+            # into the wall behind a pedestrian
+            clear = found.height_above_ground > cfg.objects.ground_height
+            point_object = label_objects(points, point_object, (labelled > 0) & clear & ~found.structure,
                                          cfg.cue_attach)
         return point_object, observations, blind_radius(ranges)
 
