@@ -46,9 +46,9 @@ from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import (
     ObjectConfig,
     VehicleReturns,
-    attach_to_nearest,
     check_numbers,
     find_objects,
+    nearest_object_within,
     voxel_clusters,
 )
 from ros2_mos.offline.tracks import (
@@ -589,10 +589,11 @@ def label_objects(points: np.ndarray, point_object: np.ndarray, labelled_moving:
                   reach: float) -> np.ndarray:
     """Per point, the object whose label it takes: its own (``point_object``), or for a point on no object that the
     online model labelled moving (``labelled_moving``), the nearest object with a point within ``reach`` m of it seen
-    from above (:func:`~ros2_mos.offline.objects.attach_to_nearest`); -1 for none. The objects' evidence and tracks
-    do not change."""
+    from above (:func:`~ros2_mos.offline.objects.nearest_object_within`); -1 for none. The objects' evidence and
+    tracks do not change."""
     out = point_object.copy()
-    attach_to_nearest(points, np.flatnonzero((point_object < 0) & labelled_moving), out, reach)
+    loose = np.flatnonzero((point_object < 0) & labelled_moving)
+    out[loose] = nearest_object_within(points, loose, point_object, reach)
     return out
 
 

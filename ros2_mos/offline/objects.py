@@ -486,6 +486,34 @@ def _cell_keys(ij: np.ndarray) -> np.ndarray:
     return ij[:, 0] * _ATTACH_SPAN + ij[:, 1]
 
 
+#: :func:`nearest_object_within` compares at most this many (point, object point) pairs at once (memory: 8 bytes each)
+NEAREST_PAIRS = 1 << 21
+_AROUND = np.array([di * _ATTACH_SPAN + dj for di in (-1, 0, 1) for dj in (-1, 0, 1)], np.int64)
+
+
+def nearest_object_within(points: np.ndarray, which: np.ndarray, point_object: np.ndarray, reach: float) -> np.ndarray:
+    """Per point ``which`` (indices), the id in ``point_object`` of the object with the nearest point within ``reach``
+    metres of it seen from above (exact distances), -1 where none. Only the objects' points in and beside the
+    ``reach``-sized cells of the points ``which`` are compared, so a few points near a large scene cost little."""
+    ids = np.full(len(which), -1, np.int32)
+    on_object = np.flatnonzero(point_object >= 0)
+    if len(which) == 0 or len(on_object) == 0:
+        return ids
+    around = np.unique((_cell_keys(np.floor(points[which, :2] / reach).astype(np.int64))[:, None] + _AROUND).ravel())
+    on_object = on_object[np.isin(_cell_keys(np.floor(points[on_object, :2] / reach).astype(np.int64)), around)]
+    if len(on_object) == 0:
+        return ids
+    xy = points[on_object, :2]
+    step = max(1, NEAREST_PAIRS // len(on_object))
+    for start in range(0, len(which), step):
+        d = points[which[start: start + step], None, :2] - xy[None]
+        d2 = np.einsum("ijk,ijk->ij", d, d)
+        nearest = np.argmin(d2, axis=1)
+        hit = d2[np.arange(len(nearest)), nearest] <= reach * reach
+        ids[start: start + step][hit] = point_object[on_object[nearest[hit]]]
+    return ids
+
+
 def attach_to_nearest(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray, reach: float) -> np.ndarray:
     """Give each of the points ``loose`` (indices; on no object) the id of the nearest object with a point within
     ``reach`` metres of it seen from above (distances between :data:`ATTACH_GRID` cells), in ``point_object``;
