@@ -253,6 +253,8 @@ def test_points_on_no_object_that_the_online_model_labels_moving_take_the_neares
     assert point_object.tolist() == [0, 0, 1, -1, -1, -1, -1, -1]  # the objects themselves stay as they were
     assert label_objects(points, point_object, moving, 4.0).tolist() == [0, 0, 1, 0, -1, 0, 1, -1]  # 3.0 m, not 5.0
     assert label_objects(points, point_object, np.zeros(8, bool), 2.0).tolist() == point_object.tolist()
+    with pytest.raises(ValueError, match="reach"):
+        label_objects(points, point_object, moving, float("nan"))
 
 
 def test_neighbourhood_min_takes_rows_pm1_and_columns_pm2_with_wrap():

@@ -486,7 +486,7 @@ def _cell_keys(ij: np.ndarray) -> np.ndarray:
     return ij[:, 0] * _ATTACH_SPAN + ij[:, 1]
 
 
-#: :func:`nearest_object_within` compares at most this many (point, object point) pairs at once (memory: 8 bytes each)
+#: :func:`nearest_object_within` compares at most this many (point, object point) pairs at once (12 bytes each)
 NEAREST_PAIRS = 1 << 21
 _AROUND = np.array([di * _ATTACH_SPAN + dj for di in (-1, 0, 1) for dj in (-1, 0, 1)], np.int64)
 
@@ -495,6 +495,8 @@ def nearest_object_within(points: np.ndarray, which: np.ndarray, point_object: n
     """Per point ``which`` (indices), the id in ``point_object`` of the object with the nearest point within ``reach``
     metres of it seen from above (exact distances), -1 where none. Only the objects' points in and beside the
     ``reach``-sized cells of the points ``which`` are compared, so a few points near a large scene cost little."""
+    if not reach > 0:
+        raise ValueError(f"reach must be a positive number of metres, got {reach!r}")
     ids = np.full(len(which), -1, np.int32)
     on_object = np.flatnonzero(point_object >= 0)
     if len(which) == 0 or len(on_object) == 0:
