@@ -486,9 +486,21 @@ def _cell_keys(ij: np.ndarray) -> np.ndarray:
     return ij[:, 0] * _ATTACH_SPAN + ij[:, 1]
 
 
+def _top_cells(points: np.ndarray, which: np.ndarray, size: float) -> np.ndarray:
+    """The keys of the top-view cells (``size`` metres) that the points ``which`` (indices) lie in."""
+    return _cell_keys(np.floor(points[which, :2] / size).astype(np.int64))
+
+
+_AROUND = np.array([di * _ATTACH_SPAN + dj for di in (-1, 0, 1) for dj in (-1, 0, 1)], np.int64)
+
+
+def _cells_around(keys: np.ndarray) -> np.ndarray:
+    """The sorted keys of the cells ``keys`` and of the 8 cells beside each."""
+    return np.unique((np.unique(keys)[:, None] + _AROUND).ravel())
+
+
 #: :func:`nearest_object_within` compares at most this many (point, object point) pairs at once (12 bytes each)
 NEAREST_PAIRS = 1 << 21
-_AROUND = np.array([di * _ATTACH_SPAN + dj for di in (-1, 0, 1) for dj in (-1, 0, 1)], np.int64)
 
 
 def nearest_object_within(points: np.ndarray, which: np.ndarray, point_object: np.ndarray, reach: float) -> np.ndarray:
@@ -501,8 +513,8 @@ def nearest_object_within(points: np.ndarray, which: np.ndarray, point_object: n
     on_object = np.flatnonzero(point_object >= 0)
     if len(which) == 0 or len(on_object) == 0:
         return ids
-    around = np.unique((_cell_keys(np.floor(points[which, :2] / reach).astype(np.int64))[:, None] + _AROUND).ravel())
-    on_object = on_object[np.isin(_cell_keys(np.floor(points[on_object, :2] / reach).astype(np.int64)), around)]
+    around = _cells_around(_top_cells(points, which, reach))
+    on_object = on_object[np.isin(_top_cells(points, on_object, reach), around)]
     if len(on_object) == 0:
         return ids
     xy = points[on_object, :2]
@@ -525,16 +537,10 @@ def attach_to_nearest(points: np.ndarray, loose: np.ndarray, point_object: np.nd
     if len(on_object) == 0 or len(loose) == 0:
         return attached
     # Only loose points in or beside an object's cell of ``reach`` metres can be that close to one.
-    coarse = np.unique(_cell_keys(np.floor(points[on_object, :2] / reach).astype(np.int64)))
-    steps = np.array([di * _ATTACH_SPAN + dj for di in (-1, 0, 1) for dj in (-1, 0, 1)], np.int64)
-    around = np.unique((coarse[:, None] + steps[None, :]).reshape(-1))
-    keys = _cell_keys(np.floor(points[loose, :2] / reach).astype(np.int64))
-    at = np.minimum(np.searchsorted(around, keys), len(around) - 1)
-    loose = loose[around[at] == keys]
+    loose = loose[np.isin(_top_cells(points, loose, reach), _cells_around(_top_cells(points, on_object, reach)))]
     if len(loose) == 0:
         return attached
-    cells, first = np.unique(_cell_keys(np.floor(points[on_object, :2] / ATTACH_GRID).astype(np.int64)),
-                             return_index=True)
+    cells, first = np.unique(_top_cells(points, on_object, ATTACH_GRID), return_index=True)
     owner = point_object[on_object[first]]
     loose_ij = np.floor(points[loose, :2] / ATTACH_GRID).astype(np.int64)
     r = int(np.ceil(reach / ATTACH_GRID))
