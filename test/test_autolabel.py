@@ -451,6 +451,66 @@ def test_a_track_does_not_jump_onto_an_object_many_times_its_size():
         TrackConfig(max_area_ratio=0.5)
 
 
+def test_a_track_is_cut_where_it_jumps_from_a_pedestrian_onto_the_parked_car_he_walked_past():
+    from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
+
+    def obs(scan: int, lo: tuple[float, float], hi: tuple[float, float], far: float) -> Observation:
+        lo3, hi3 = np.array([*lo, 0.0]), np.array([*hi, 1.6])
+        return Observation(scan, 0, (lo3 + hi3) / 2, 100, lo3, hi3, far, far)
+
+    def follow(observations: list[Observation], config: TrackConfig = TrackConfig()) -> Tracker:
+        tracker = Tracker(config)
+        for k in range(observations[-1].scan + 1):  # every scan, also those where the track was missed
+            tracker.add_scan(k, 0.1 * k, 0.1 * (k - 1) if k else None, [o for o in observations if o.scan == k])
+        return tracker
+
+    # VLP-16 unseen6 narrow_street-10211: a pedestrian walks along y -2.0..-1.5 at 3 m/s, seen through, and is hidden
+    # for scans 11 and 12; at scan 13 the tracker takes on the first glimpse of the parked car he walks past, 0.3 m
+    # beside his last box (y -2.6..-2.3), and follows the car, never seen through, as it comes into view (its box
+    # grows 0.5 m a scan) and for the rest of the drive.
+    walker = [obs(k, (-5.5 + 0.3 * k, -2.0), (-5.0 + 0.3 * k, -1.5), 0.9) for k in range(11)]
+    car = [obs(k, (-2.0, max(-2.6 - 0.3 * (k - 13), -3.7)), (min(-1.6 + 0.5 * (k - 13), 2.6), -2.3), 0.0)
+           for k in range(13, 40)]
+    tracker = follow(walker + car)
+    assert len(tracker.tracks) == 1  # the gate (1.5 m around the prediction) and the size ratio let the jump through
+    assert tracker.cut_jumps() == 1
+    assert [len(t.observations) for t in tracker.tracks] == [11, 27]
+    assert tracker.track_of[(13, 0)] == tracker.track_of[(39, 0)] == 1 and tracker.track_of[(10, 0)] == 0
+    assert tracker.movers() == {0: "seen through"}  # the car is no mover, and so not moving in any scan
+    # Not cut: the same jump without a missed scan (the car's glimpse at scan 11), or onto a box that overlaps the last
+    # one (grown by jump_margin: 0.35 m instead of 0.2), or with jump_gap 0
+    assert follow(walker + [obs(k, c.lo[:2], c.hi[:2], 0.0) for k, c in zip(range(11, 40), car)]).cut_jumps() == 0
+    assert follow(walker + car, TrackConfig(jump_margin=0.35)).cut_jumps() == 0
+    assert follow(walker + car, TrackConfig(jump_gap=0)).cut_jumps() == 0
+    # Not cut: a pedestrian who stops where he was hidden (his box overlaps his last one), or whose evidence goes on
+    stops = walker + [obs(k, (-2.5, -2.0), (-2.0, -1.5), 0.0) for k in range(13, 40)]
+    assert follow(stops).cut_jumps() == 0
+    assert follow(walker + [obs(k, c.lo[:2], c.hi[:2], 0.9 if k < 15 else 0.0) for k, c in zip(range(13, 40), car)]
+                  ).cut_jumps() == 0
+    # ... and the other way round: a parked car's track, down to a stub as the sensor passes it, that takes on a
+    # pedestrian who walks off from beside its end; but not a post's that takes him on (the same size as he)
+    parked = [obs(k, (-2.0 + 0.8 * max(k - 14, 0), -3.7), (2.6, -2.1), 0.0) for k in range(20)]
+    walks_off = [obs(k, (2.9 + 0.3 * (k - 22), -2.0), (3.4 + 0.3 * (k - 22), -1.5), 0.9) for k in range(22, 30)]
+    tracker = follow(parked + walks_off)
+    assert len(tracker.tracks) == 1 and tracker.cut_jumps() == 1
+    post = [obs(k, (2.6, -2.0), (2.9, -1.7), 0.0) for k in range(20)]
+    tracker = follow(post + walks_off)
+    assert len(tracker.tracks) == 1 and tracker.cut_jumps() == 0
+    # ... nor a pedestrian who waited, then walked off while hidden (0.4 m on from where he stood): one size
+    waits = [obs(k, (0.0, -2.0), (0.5, -1.5), 0.0) for k in range(20)]
+    walks = [obs(k, (0.9 + 0.15 * (k - 22), -2.0), (1.4 + 0.15 * (k - 22), -1.5), 0.9) for k in range(22, 40)]
+    tracker = follow(waits + walks)
+    assert len(tracker.tracks) == 1 and tracker.cut_jumps() == 0 and tracker.movers() == {0: "seen through"}
+    tracker = follow(parked + walks_off)
+    tracker.cut_jumps()
+    assert tracker.movers() == {1: "seen through"}
+    for bad in (-1, float("nan")):
+        with pytest.raises(ConfigError, match="jump_gap"):
+            TrackConfig(jump_gap=bad)
+    with pytest.raises(ConfigError, match="jump_margin"):
+        TrackConfig(jump_margin=float("inf"))
+
+
 def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_moving_often_enough():
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_THROUGH, Observation, Track, TrackConfig, Tracker

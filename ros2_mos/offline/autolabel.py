@@ -239,6 +239,7 @@ class AutoLabeler:
         tracker = Tracker(self.config.tracks)
         cue_skipped, blind = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir,
                                                         progress)
+        tracker.cut_jumps()
         movers = tracker.movers(cue=self.cue_model is not None)
         movers.update(tracker.handovers(movers))
         movers.update(tracker.resumptions(movers))
