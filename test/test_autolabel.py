@@ -897,6 +897,43 @@ def test_a_track_that_waited_is_moving_where_it_stood_as_it_ended_and_where_it_w
     assert labeler._moving_ever(result) == {(11, 0), (12, 0)}
 
 
+def test_a_mover_whose_box_changes_shape_moves_now_where_the_online_model_says_so():
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, AutolabelResult, reshaped
+    from ros2_mos.offline.tracks import SEEN_THROUGH, Observation, Track, Tracker
+
+    # by hand: x edges -0.3 / +0.3 (opposite, both over 0.2): reshaped; -0.3 / +0.1, or both +0.3 (moved): not
+    lo0, hi0 = np.zeros((3, 2)), np.ones((3, 2))
+    lo1 = lo0 + np.array([[-0.3, 0.0], [-0.3, 0.0], [0.3, 0.0]])
+    hi1 = hi0 + np.array([[0.3, 0.0], [0.1, 0.0], [0.3, 0.0]])
+    assert reshaped(lo0, hi0, lo1, hi1, 0.2).tolist() == [True, False, False]
+    assert not reshaped(lo0, hi0, lo1, hi1, 0.0).any()
+
+    def obs(scan: int, lo: float, hi: float, online: float, far: float = 0.0) -> Observation:
+        lo3, hi3 = np.array([lo, 2.0, 0.0]), np.array([hi, 3.8, 1.5])
+        return Observation(scan, 0, (lo3 + hi3) / 2, 200, lo3, hi3, 0.0, far, online)  # near, far, online
+
+    # A car creeping towards -x at 0.5 m/s (0.05 m a scan) as the sensor comes up beside it, seen through only at the
+    # end (scans 20-21): its box grows at both ends as more of it comes into view (rear edge x 50 -> 47 over scans
+    # 0-20, front edge 53 -> 55), so its edges move opposite ways and its box shift is nothing; the model labels it
+    # moving.
+    def creeping(online: float) -> Track:
+        return Track(0, [obs(k, 50.0 - 0.15 * k, 53.0 + 0.1 * k, online, 0.5 if k >= 20 else 0.0) for k in range(22)])
+
+    tracker = Tracker()
+    result = AutolabelResult("creeper", 22, np.repeat(np.eye(4)[None], 22, 0), np.arange(22) * 0.1, tracker,
+                             {0: SEEN_THROUGH}, [200] * 22)
+    for cue_reshape, online, moving in ((0.2, 0.9, set(range(22))), (0.0, 0.9, set()), (0.2, 0.3, set())):
+        tracker.tracks = [creeping(online)]
+        labeler = AutoLabeler(sensor_preset("hdl64"), AutolabelConfig(instant_cue_reshape=cue_reshape))
+        assert labeler._moving_now(result) == {(k, 0) for k in moving}
+    # A car that waits, its box still, is not moving now however much the model says it is
+    tracker.tracks = [Track(0, [obs(k, 50.0, 54.5, 0.9, 0.5 if k >= 20 else 0.0) for k in range(22)])]
+    assert AutoLabeler(sensor_preset("hdl64"), AutolabelConfig())._moving_now(result) == set()
+    with pytest.raises(ConfigError, match="instant_cue_reshape"):
+        AutolabelConfig(instant_cue_reshape=float("nan"))
+
+
 def test_an_object_whose_seen_through_part_lies_apart_from_the_rest_is_two():
     from ros2_mos.offline.autolabel import split_seen_apart
 

@@ -138,6 +138,12 @@ class AutolabelConfig:
     #: seen-through one: a car driving ahead at the sensor's speed hides its next place, so its last scans have no
     #: scan that sees through where it was (measured: benchmarks/autolabel.md, round 25)
     ever_from_motion: bool = True
+    #: m: an observation of a mover whose box's two edges moved opposite ways, each more than this, over the
+    #: observations ``instant_span`` before and after it (:func:`reshaped`: the view of it changed, so its box cannot
+    #: tell whether it moved) moves now where the online model labelled at least ``CUE_MOVING_NOW`` of its points
+    #: moving: a car creeping past the sensor, whose visible box grows at one end and shrinks at the other. Not where
+    #: its box stood still: the model calls a queue moving while it waits (0: off; the box rule only)
+    instant_cue_reshape: float = 0.2
 
     def __post_init__(self) -> None:
         offsets = (*self.near_offsets, *self.far_offsets)
@@ -150,7 +156,7 @@ class AutolabelConfig:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
         check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin", "split_voxel", "cue_attach",
-                                                  "odometry_margin", "odometry_margin_share"),
+                                                  "odometry_margin", "odometry_margin_share", "instant_cue_reshape"),
                       at_most_one=("instant_seen_through",))
 
     @property
@@ -429,7 +435,8 @@ class AutoLabeler:
 
     def _moving_now(self, result: AutolabelResult) -> set[tuple[int, int]]:
         """The observations of movers that move in their own scan (the instant convention): seen through by a near
-        scan, or moving at ``instant_speed`` or more: their box (:func:`box_shift`), or with
+        scan, labelled moving by the online model where their box changed shape (``instant_cue_reshape``), or moving
+        at ``instant_speed`` or more: their box (:func:`box_shift`), or with
         ``instant_motion='centroid'`` their centroid within ``instant_context`` observations of one that was seen
         through (the centroid of a car that waits long slides as the sensor passes it; the box rule needs no such
         guard, and with it a car that leaves at the very end of a drive, with no later scan to see through its old
@@ -457,15 +464,18 @@ class AutoLabeler:
                     cut_lo, cut_hi = cut[before, 0] | cut[after, 0], cut[before, 1] | cut[after, 1]
                 shift = box_shift(lo[before], hi[before], lo[after], hi[after], cut_lo, cut_hi)
                 context = np.ones(m, bool)
+                labelled = reshaped(lo[before], hi[before], lo[after], hi[after], cfg.instant_cue_reshape) & \
+                    np.array([o.online >= CUE_MOVING_NOW for o in obs])
             else:
                 c = np.array([o.centroid[:2] for o in obs])
                 shift = c[after] - c[before]
                 seen = np.flatnonzero([result.tracker.seen_through(o) for o in obs])
                 context = (np.abs(index[:, None] - seen[None, :]) <= cfg.instant_context).any(axis=1) if len(seen) \
                     else np.zeros(m, bool)
+                labelled = np.zeros(m, bool)
             speed = np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
             near = np.array([o.near >= cfg.instant_seen_through for o in obs])
-            moving = near | ((speed >= cfg.instant_speed) & context)
+            moving = near | ((speed >= cfg.instant_speed) & context) | labelled
             out.update((o.scan, o.obj) for o, flag in zip(obs, moving) if flag)
         return out
 
@@ -501,6 +511,15 @@ class AutoLabeler:
             else:
                 moving[j] = (scan, j) in result.moving_now
         return moving
+
+
+def reshaped(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray, least: float) -> np.ndarray:
+    """(M,) whether the boxes (lo0, hi0) -> (lo1, hi1) (``(M, D)`` corners) changed shape rather than place: on some
+    axis both edges moved more than ``least`` m, opposite ways (never with ``least`` 0)."""
+    d_lo, d_hi = lo1 - lo0, hi1 - hi0
+    if least <= 0:
+        return np.zeros(len(d_lo), bool)
+    return ((np.sign(d_lo) != np.sign(d_hi)) & (np.abs(d_lo) > least) & (np.abs(d_hi) > least)).any(axis=1)
 
 
 #: The drive's blind radius (:func:`blind_radius`) is the range of a scan's this-many-th nearest return (a few stray
