@@ -342,9 +342,11 @@ class Tracker:
         """The indices of ``track``'s observations where it jumped to another object (:meth:`cut_jumps`)."""
         cfg = self.config
         obs = track.observations
+        gaps = [i for i in range(1, len(obs)) if obs[i].scan - obs[i - 1].scan >= cfg.jump_gap]
+        if not gaps:  # most tracks: never missed
+            return []
         seen = np.array([self.seen_through(o) for o in obs])
         area = np.array([footprint(o) for o in obs])
-        gaps = [i for i in range(1, len(obs)) if obs[i].scan - obs[i - 1].scan >= cfg.jump_gap]
         before, after = cfg.min_moving_observations, cfg.jump_evidence
         out = []
         for g, i in enumerate(gaps):
