@@ -354,7 +354,8 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
     np.maximum.at(top, cluster, height[candidate])
     length = np.hypot(hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1])
     tall = hi[:, 2] - lo[:, 2]
-    good = ((counts >= config.min_points) & (length <= config.max_length) & (tall <= config.max_height)
+    too_large = (length > config.max_length) | (tall > config.max_height)  # a wall, a hedge: a structure
+    good = ((counts >= config.min_points) & ~too_large
             & ((tall >= config.min_height) | (top >= config.flat_top)) & (bottom <= config.max_bottom))
     new_id = np.full(k, -1, np.int32)
     new_id[good] = np.arange(int(good.sum()), dtype=np.int32)
@@ -376,7 +377,7 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
             attached |= attach_over(points, raised, point_object, sensor, config.attach_steep, config.raised_rows,
                                     image)
     structure = np.zeros(n, bool)
-    structure[candidate] = ((length > config.max_length) | (tall > config.max_height))[cluster]
+    structure[candidate] = too_large[cluster]
     return ScanObjects(point_object, counts[good], attached, height, structure)
 
 
