@@ -357,10 +357,12 @@ class Tracker:
                 not seen[i:i + after].any()
             started = i >= after and not seen[i - after:i].any() and i + before <= len(obs) and \
                 seen[i:i + before].all()
+            if not (stopped or started):
+                continue
             # the observations between this gap and the ones around it: two objects of different sizes
             a = float(np.median(area[gaps[g - 1] if g else 0:i]))
             b = float(np.median(area[i:gaps[g + 1] if g + 1 < len(gaps) else len(obs)]))
-            if (stopped or started) and max(a, b) >= cfg.max_area_ratio * min(a, b):
+            if max(a, b) >= cfg.max_area_ratio * min(a, b):
                 out.append(i)
         return out
 
