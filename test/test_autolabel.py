@@ -577,7 +577,47 @@ def test_a_car_the_online_model_saw_drive_up_then_wait_long_is_a_mover_by_its_ru
     assert tracker.movers() == {0: ONLINE_MODEL, 4: ONLINE_MODEL}
     without = Tracker(dataclasses.replace(config, cue_run=False))  # off: 6 of 36 observations is under half of them
     without.tracks = tracker.tracks
+    assert without.movers() == {4: ONLINE_MODEL}  # its run ends the drive (``cue_end_travel``)
+    without = Tracker(dataclasses.replace(config, cue_run=False, cue_end_travel=0.0))
+    without.tracks = tracker.tracks
     assert without.movers() == {}
+
+
+def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_its_word():
+    from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, Track, TrackConfig, Tracker
+
+    def track(tid: int, online: list[float], steps: list[float], distance: float = 5.3, first: int = 0) -> Track:
+        """A car 3.7 m long ahead of the sensor, seen from scan ``first`` on, ``steps[k]`` m on along x after the
+        observation before."""
+        x = np.cumsum([0.0, *steps[1:]])
+        return Track(tid, [Observation(first + k, 0, np.array([10.4 + xk, -0.6, 0.8]), 400,
+                                       np.array([8.6 + xk, -1.5, 0.0]), np.array([12.3 + xk, 0.3, 1.5]), 0.0, 0.0,
+                                       share, distance=distance)
+                           for k, (xk, share) in enumerate(zip(x, online))])
+
+    waited = [0.0] * 95
+    pulled = [0.0, 0.05, 0.07, 0.08, 0.1]  # 0.3 m on over 5 observations, the model calling them moving
+    labelled = [0.0] * 95 + [0.9] * 5
+    config = TrackConfig(cue_share=0.6, cue_observations=5, cue_travel=1.5, cue_end_travel=0.25, max_missed=5)
+    tracker = Tracker(config)
+    tracker.last_scan = 99  # a drive of 100 scans
+    tracker.tracks = [
+        track(0, labelled, waited + pulled),  # VLP-16 unseen8 narrow_street-10412's car, pulling away at scans 95-99
+        track(1, labelled, waited + [0.0, 0.02, 0.02, 0.03, 0.03]),  # 0.1 m: the model's error on a standing car
+        track(2, labelled, waited + pulled, distance=2.9),  # a parked car passed at arm's length
+        track(3, labelled[1:-1], waited[1:] + pulled[:4], first=1),  # 4 labelled observations: too few
+        track(4, [*labelled[1:], 0.0], waited[1:] + pulled + [0.0], first=0),  # the run does not end the track
+        track(5, labelled, waited + pulled, first=-3),  # its last observation at scan 96: missed, within max_missed
+        track(6, labelled, waited + pulled, first=-7),  # its last at scan 92, 7 scans before the end: it went on
+    ]
+    # by hand: track 0's last 5 boxes, both edges 0.3 m along x (0.05 + 0.07 + 0.08 + 0.1), >= 0.25 m, 5.3 m >= 4 m
+    assert tracker.movers() == {0: ONLINE_MODEL, 5: ONLINE_MODEL}
+    off = Tracker(dataclasses.replace(config, cue_end_travel=0.0))
+    off.tracks, off.last_scan = tracker.tracks, 99
+    assert off.movers() == {}
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="cue_end_travel"):
+            TrackConfig(cue_end_travel=bad)
 
 
 def test_a_scan_the_online_model_refuses_goes_without_the_cue(jam, tmp_path, monkeypatch):

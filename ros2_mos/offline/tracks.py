@@ -81,6 +81,13 @@ class TrackConfig:
     #: (VLP-32C unseen7 benchmark-10321 74.4 -> 92.3; 7 new movers on 112 VLP-32C and VLP-16 drives, one of them
     #: false: benchmarks/autolabel.md, round 32)
     cue_run: bool = True
+    #: m: a track still live as the drive ended (its last observation within ``max_missed`` scans of the last scan)
+    #: whose last ``cue_observations`` or more observations the model labelled moving is one on the model's word where
+    #: their boxes travelled this far among themselves (``cue_min_distance`` or farther from the sensor): a car that
+    #: pulls away as the drive ends has no later scan to see its place empty, nor time to travel ``cue_travel``
+    #: (VLP-16 unseen8 narrow_street-10412: a car that waited ahead of the sensor for 90 scans, 0.35 m on when the
+    #: drive ends; under SemanticKITTI's convention it moved while observed) (0: off)
+    cue_end_travel: float = 0.25
     #: scans: a track that ends within this many scans of where a mover's track begins (their boxes, grown by
     #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
     handover_scans: int = 3
@@ -136,7 +143,7 @@ class TrackConfig:
         check_numbers(self, "autolabel tracks",
                       zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
                                "handover_travel", "cue_travel", "cue_veto_share", "cue_min_distance", "resume_scans",
-                               "resume_stood", "resume_travel", "jump_gap", "jump_margin"),
+                               "resume_stood", "resume_travel", "jump_gap", "jump_margin", "cue_end_travel"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller",
                                    "cue_veto_share"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
@@ -270,9 +277,12 @@ class Tracker:
         self._live: list[Track] = []
         #: (scan, object) -> track id
         self.track_of: dict[tuple[int, int], int] = {}
+        #: the last scan added (-1: none)
+        self.last_scan = -1
 
     def add_scan(self, scan: int, stamp: float, last_stamp: float | None, observations: list[Observation]) -> None:
         cfg = self.config
+        self.last_scan = max(self.last_scan, scan)
         dt = 0.1 if last_stamp is None else max(stamp - last_stamp, 1e-3)
         live = [t for t in self._live if scan - t.last.scan <= cfg.max_missed]
         matched_obs: set[int] = set()
@@ -394,7 +404,8 @@ class Tracker:
     def labelled_moving(self, track: Track) -> bool:
         """The online model labelled enough of the track's observations moving (see ``TrackConfig.cue_share``), its
         boxes travelled ``cue_travel``, and it stood ``cue_min_distance`` or farther from the sensor; or (``cue_run``)
-        a run of ``cue_observations`` consecutive ones did all that among themselves."""
+        a run of ``cue_observations`` consecutive ones did all that among themselves; or (``cue_end_travel``) the run
+        it ended the drive with travelled ``cue_end_travel``."""
         cfg = self.config
         obs = track.observations
         hit = np.array([o.online >= cfg.cue_share for o in obs])
@@ -402,16 +413,23 @@ class Tracker:
             return False
         if hit.sum() >= cfg.cue_track_share * len(obs) and self._labelled_moving_along(obs):
             return True
-        if not cfg.cue_run:
-            return False
         edges = np.flatnonzero(np.diff(np.concatenate([[0], hit.astype(np.int8), [0]])))
-        return any(self._labelled_moving_along(obs[a:b])
-                   for a, b in zip(edges[::2], edges[1::2]) if b - a >= cfg.cue_observations)
+        runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= cfg.cue_observations]
+        if cfg.cue_run and any(self._labelled_moving_along(obs[a:b]) for a, b in runs):
+            return True
+        # pulling away as the drive ended: the run that ends the track, the track live at the drive's last scan
+        return cfg.cue_end_travel > 0 and bool(runs) and runs[-1][1] == len(obs) and \
+            track.last.scan >= self._drive_end() - cfg.max_missed and \
+            self._labelled_moving_along(obs[runs[-1][0]:], cfg.cue_end_travel)
 
-    def _labelled_moving_along(self, observations: list[Observation]) -> bool:
+    def _drive_end(self) -> int:
+        """The drive's last scan: the last one added, else (tracks given whole) the last one any track saw."""
+        return self.last_scan if self.last_scan >= 0 else max((t.last.scan for t in self.tracks), default=-1)
+
+    def _labelled_moving_along(self, observations: list[Observation], travel: float | None = None) -> bool:
         cfg = self.config
-        return evidence_travel(observations, cfg.evidence_travel) >= cfg.cue_travel and \
-            float(np.median([o.distance for o in observations])) >= cfg.cue_min_distance
+        return evidence_travel(observations, cfg.evidence_travel) >= (cfg.cue_travel if travel is None else travel) \
+            and float(np.median([o.distance for o in observations])) >= cfg.cue_min_distance
 
     def _car_sized_as_it_ended(self, track: Track, beside: float, together: int = 1) -> bool:
         """Whether ``track``'s last box is ``handover_smaller`` to ``handover_larger`` times the footprint ``beside``
