@@ -577,14 +577,11 @@ def test_a_car_the_online_model_saw_drive_up_then_wait_long_is_a_mover_by_its_ru
     assert tracker.movers() == {0: ONLINE_MODEL, 4: ONLINE_MODEL}
     without = Tracker(dataclasses.replace(config, cue_run=False))  # off: 6 of 36 observations is under half of them
     without.tracks = tracker.tracks
-    assert without.movers() == {4: ONLINE_MODEL}  # its run ends the drive (``cue_end_travel``)
-    without = Tracker(dataclasses.replace(config, cue_run=False, cue_end_travel=0.0))
-    without.tracks = tracker.tracks
     assert without.movers() == {}
 
 
 def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_its_word():
-    from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, Track, TrackConfig, Tracker
+    from ros2_mos.offline.tracks import PULLED_AWAY, SEEN_THROUGH, Observation, Track, TrackConfig, Tracker
 
     def track(tid: int, online: list[float], steps: list[float], distance: float = 5.3, first: int = 0) -> Track:
         """A car 3.7 m long ahead of the sensor, seen from scan ``first`` on, ``steps[k]`` m on along x after the
@@ -610,11 +607,28 @@ def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_i
         track(5, labelled, waited + pulled, first=-3),  # its last observation at scan 96: missed, within max_missed
         track(6, labelled, waited + pulled, first=-7),  # its last at scan 92, 7 scans before the end: it went on
     ]
+    assert tracker.movers() == {}  # none travelled 1.5 m (``cue_travel``), none was seen through
     # by hand: track 0's last 5 boxes, both edges 0.3 m along x (0.05 + 0.07 + 0.08 + 0.1), >= 0.25 m, 5.3 m >= 4 m
-    assert tracker.movers() == {0: ONLINE_MODEL, 5: ONLINE_MODEL}
+    assert tracker.pulling_away({}) == {0: PULLED_AWAY, 5: PULLED_AWAY}
+    assert [o.scan for o in tracker.final_run(tracker.tracks[0])] == [95, 96, 97, 98, 99]
+    assert tracker.final_run(tracker.tracks[4]) == []
+    # a track that is a mover by other evidence (here: a resumption's, or seen through) keeps it
+    assert tracker.pulling_away({0: SEEN_THROUGH}) == {5: PULLED_AWAY}
     off = Tracker(dataclasses.replace(config, cue_end_travel=0.0))
     off.tracks, off.last_scan = tracker.tracks, 99
-    assert off.movers() == {}
+    assert off.pulling_away({}) == {}
+    # SemanticKITTI's convention: moving in every scan it was seen (it moved while observed); the instant one: in the
+    # observations the model saw it pull away in, not while it waited (the model may call a waiting queue moving)
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, AutolabelResult
+
+    tracker.tracks = tracker.tracks[:1]
+    tracker.tracks[0].observations[10].online = 0.9  # a flicker while it waited
+    result = AutolabelResult("pulling away", 100, np.repeat(np.eye(4)[None], 100, 0), np.arange(100) * 0.1, tracker,
+                             {0: PULLED_AWAY}, [400] * 100)
+    labeler = AutoLabeler(sensor_preset("hdl64"), AutolabelConfig(tracks=config))
+    assert labeler._moving_ever(result) == {(k, 0) for k in range(100)}
+    assert labeler._moving_now(result) == {(k, 0) for k in range(95, 100)}
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ConfigError, match="cue_end_travel"):
             TrackConfig(cue_end_travel=bad)

@@ -53,6 +53,7 @@ from ros2_mos.offline.objects import (
 )
 from ros2_mos.offline.tracks import (
     ONLINE_MODEL,
+    PULLED_AWAY,
     RESUMED,
     WAITED,
     Observation,
@@ -249,6 +250,7 @@ class AutoLabeler:
         movers = tracker.movers(cue=self.cue_model is not None)
         movers.update(tracker.handovers(movers))
         movers.update(tracker.resumptions(movers))
+        movers.update(tracker.pulling_away(movers))
         result = AutolabelResult(drive.name, n, poses, stamps, tracker, movers, sizes,
                                  cue_model=self.cue_model.name if self.cue_model is not None else "",
                                  cue_skipped=cue_skipped, odometry_followed=followed, blind_radius=blind)
@@ -449,6 +451,9 @@ class AutoLabeler:
             if evidence == ONLINE_MODEL:  # no seen-through place to move from: the online model's word, scan by scan
                 out.update((o.scan, o.obj) for o in obs if o.online >= CUE_MOVING_NOW)
                 continue
+            if evidence == PULLED_AWAY:  # it waited, then pulled away: its last observations, the model's word on them
+                out.update((o.scan, o.obj) for o in result.tracker.final_run(result.tracker.tracks[tid]))
+                continue
             t = result.stamps[[o.scan for o in obs]]
             m = len(obs)
             index = np.arange(m)
@@ -487,7 +492,7 @@ class AutoLabeler:
         out = set()
         for tid, evidence in result.movers.items():
             obs = result.tracker.tracks[tid].observations
-            if evidence == ONLINE_MODEL:  # the online model's movers: every observation
+            if evidence in (ONLINE_MODEL, PULLED_AWAY):  # the online model's movers: every observation
                 out.update((o.scan, o.obj) for o in obs)
                 continue
             lo = np.array([o.lo[:2] for o in obs]) - cfg.support_margin

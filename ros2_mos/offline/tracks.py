@@ -32,6 +32,8 @@ WAITED = "waited, then left"
 #: A track that began where a mover's track ended standing, soon after it ended (:meth:`Tracker.resumptions`): the
 #: same object, seen again after something passed between it and the sensor.
 RESUMED = "seen again where it stood"
+#: A track that the online model saw pull away as the drive ended (:meth:`Tracker.pulling_away`).
+PULLED_AWAY = "pulling away as the drive ended"
 #: How far apart seen-through observations lie (:func:`evidence_travel`).
 EVIDENCE_TRAVEL = ("box", "centroid")
 
@@ -81,12 +83,13 @@ class TrackConfig:
     #: (VLP-32C unseen7 benchmark-10321 74.4 -> 92.3; 7 new movers on 112 VLP-32C and VLP-16 drives, one of them
     #: false: benchmarks/autolabel.md, round 32)
     cue_run: bool = True
-    #: m: a track still live as the drive ended (its last observation within ``max_missed`` scans of the last scan)
-    #: whose last ``cue_observations`` or more observations the model labelled moving is one on the model's word where
-    #: their boxes travelled this far among themselves (``cue_min_distance`` or farther from the sensor): a car that
-    #: pulls away as the drive ends has no later scan to see its place empty, nor time to travel ``cue_travel``
-    #: (VLP-16 unseen8 narrow_street-10412: a car that waited ahead of the sensor for 90 scans, 0.35 m on when the
-    #: drive ends; under SemanticKITTI's convention it moved while observed) (0: off)
+    #: m: a track, a mover by no other evidence, still live as the drive ended (its last observation within
+    #: ``max_missed`` scans of the last scan) whose last ``cue_observations`` or more observations the model labelled
+    #: moving is a mover where their boxes travelled this far among themselves (``cue_min_distance`` or farther from
+    #: the sensor): a car that pulls away as the drive ends has no later scan to see its place empty, nor time to
+    #: travel ``cue_travel`` (VLP-16 unseen8 narrow_street-10412: a car that waited ahead of the sensor for 90 scans,
+    #: 0.35 m on when the drive ends; under SemanticKITTI's convention it moved while observed). It moves now in
+    #: those last observations only (:meth:`Tracker.pulling_away`) (0: off)
     cue_end_travel: float = 0.25
     #: scans: a track that ends within this many scans of where a mover's track begins (their boxes, grown by
     #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
@@ -404,8 +407,7 @@ class Tracker:
     def labelled_moving(self, track: Track) -> bool:
         """The online model labelled enough of the track's observations moving (see ``TrackConfig.cue_share``), its
         boxes travelled ``cue_travel``, and it stood ``cue_min_distance`` or farther from the sensor; or (``cue_run``)
-        a run of ``cue_observations`` consecutive ones did all that among themselves; or (``cue_end_travel``) the run
-        it ended the drive with travelled ``cue_end_travel``."""
+        a run of ``cue_observations`` consecutive ones did all that among themselves."""
         cfg = self.config
         obs = track.observations
         hit = np.array([o.online >= cfg.cue_share for o in obs])
@@ -413,14 +415,41 @@ class Tracker:
             return False
         if hit.sum() >= cfg.cue_track_share * len(obs) and self._labelled_moving_along(obs):
             return True
+        if not cfg.cue_run:
+            return False
         edges = np.flatnonzero(np.diff(np.concatenate([[0], hit.astype(np.int8), [0]])))
-        runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= cfg.cue_observations]
-        if cfg.cue_run and any(self._labelled_moving_along(obs[a:b]) for a, b in runs):
-            return True
-        # pulling away as the drive ended: the run that ends the track, the track live at the drive's last scan
-        return cfg.cue_end_travel > 0 and bool(runs) and runs[-1][1] == len(obs) and \
-            track.last.scan >= self._drive_end() - cfg.max_missed and \
-            self._labelled_moving_along(obs[runs[-1][0]:], cfg.cue_end_travel)
+        return any(self._labelled_moving_along(obs[a:b])
+                   for a, b in zip(edges[::2], edges[1::2]) if b - a >= cfg.cue_observations)
+
+    def pulling_away(self, movers: dict[int, str]) -> dict[int, str]:
+        """{track id: PULLED_AWAY} for the tracks, movers by no other evidence, that the online model saw pull away
+        as the drive ended (``TrackConfig.cue_end_travel``): still live at the drive's last scan (within
+        ``max_missed`` scans of it), their last ``cue_observations`` or more observations labelled moving
+        (``cue_share``), and those observations' boxes ``cue_end_travel`` m apart among themselves,
+        ``cue_min_distance`` or farther from the sensor. Such a car has no later scan to see its place empty, nor
+        time to travel ``cue_travel``. Call it after :meth:`handovers` and :meth:`resumptions`: a track that is
+        their mover keeps their evidence."""
+        cfg = self.config
+        if cfg.cue_end_travel == 0:
+            return {}
+        out = {}
+        live_until = self._drive_end() - cfg.max_missed
+        for track in self.tracks:
+            if track.id in movers or track.last.scan < live_until:
+                continue
+            run = self.final_run(track)
+            if len(run) >= cfg.cue_observations and self._labelled_moving_along(run, cfg.cue_end_travel):
+                out[track.id] = PULLED_AWAY
+        return out
+
+    def final_run(self, track: Track) -> list[Observation]:
+        """The observations at the end of ``track`` that the online model labelled moving (``cue_share``), back to
+        the last one it did not."""
+        obs = track.observations
+        start = len(obs)
+        while start > 0 and obs[start - 1].online >= self.config.cue_share:
+            start -= 1
+        return obs[start:]
 
     def _drive_end(self) -> int:
         """The drive's last scan: the last one added, else (tracks given whole) the last one any track saw."""
