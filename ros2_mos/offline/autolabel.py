@@ -451,9 +451,6 @@ class AutoLabeler:
             if evidence == ONLINE_MODEL:  # no seen-through place to move from: the online model's word, scan by scan
                 out.update((o.scan, o.obj) for o in obs if o.online >= CUE_MOVING_NOW)
                 continue
-            if evidence == PULLED_AWAY:  # it waited, then pulled away: its last observations, the model's word on them
-                out.update((o.scan, o.obj) for o in result.tracker.final_run(result.tracker.tracks[tid]))
-                continue
             t = result.stamps[[o.scan for o in obs]]
             m = len(obs)
             index = np.arange(m)

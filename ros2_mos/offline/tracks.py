@@ -88,8 +88,8 @@ class TrackConfig:
     #: moving is a mover where their boxes travelled this far among themselves (``cue_min_distance`` or farther from
     #: the sensor): a car that pulls away as the drive ends has no later scan to see its place empty, nor time to
     #: travel ``cue_travel`` (VLP-16 unseen8 narrow_street-10412: a car that waited ahead of the sensor for 90 scans,
-    #: 0.35 m on when the drive ends; under SemanticKITTI's convention it moved while observed). It moves now in
-    #: those last observations only (:meth:`Tracker.pulling_away`) (0: off)
+    #: 0.35 m on when the drive ends; under SemanticKITTI's convention it moved while observed). Under the instant
+    #: convention it moves now by the rules for every mover (:meth:`Tracker.pulling_away`) (0: off)
     cue_end_travel: float = 0.25
     #: scans: a track that ends within this many scans of where a mover's track begins (their boxes, grown by
     #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
@@ -437,12 +437,12 @@ class Tracker:
         for track in self.tracks:
             if track.id in movers or track.last.scan < live_until:
                 continue
-            run = self.final_run(track)
+            run = self._final_run(track)
             if len(run) >= cfg.cue_observations and self._labelled_moving_along(run, cfg.cue_end_travel):
                 out[track.id] = PULLED_AWAY
         return out
 
-    def final_run(self, track: Track) -> list[Observation]:
+    def _final_run(self, track: Track) -> list[Observation]:
         """The observations at the end of ``track`` that the online model labelled moving (``cue_share``), back to
         the last one it did not."""
         obs = track.observations
