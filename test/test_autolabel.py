@@ -607,6 +607,13 @@ def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_i
         track(5, labelled, waited + pulled, first=-3),  # its last observation at scan 96: missed, within max_missed
         track(6, labelled, waited + pulled, first=-7),  # its last at scan 92, 7 scans before the end: it went on
     ]
+    # VLP-32C unseen7 narrow_street-10313: a parked car 24 m away seen as 10-20 points, its box jittering, that the
+    # model calls moving at the end: between two of its boxes both edges moved 0.3 m the same way, but its last box
+    # is not on from its first (by hand: x edges +1.9 / -0.2, opposite ways: nothing)
+    jitter = [(8.1, 11.16), (8.78, 10.51), (10.15, 10.83), (9.89, 10.35), (10.27, 10.38), (10.02, 10.98)]
+    tracker.tracks.append(Track(7, [Observation(94 + k, 0, np.array([(lo + hi) / 2, 6.0, 0.8]), 15,
+                                                np.array([lo, 5.2, 0.0]), np.array([hi, 6.8, 1.5]), 0.0, 0.0, 1.0,
+                                                distance=24.0) for k, (lo, hi) in enumerate(jitter)]))
     assert tracker.movers() == {}  # none travelled 1.5 m (``cue_travel``), none was seen through
     # by hand: track 0's last 5 boxes, both edges 0.3 m along x (0.05 + 0.07 + 0.08 + 0.1), >= 0.25 m, 5.3 m >= 4 m
     assert tracker.pulling_away({}) == {0: PULLED_AWAY, 5: PULLED_AWAY}

@@ -85,8 +85,8 @@ class TrackConfig:
     cue_run: bool = True
     #: m: a track, a mover by no other evidence, still live as the drive ended (its last observation within
     #: ``max_missed`` scans of the last scan) whose last ``cue_observations`` or more observations the model labelled
-    #: moving is a mover where their boxes travelled this far among themselves (``cue_min_distance`` or farther from
-    #: the sensor): a car that pulls away as the drive ends has no later scan to see its place empty, nor time to
+    #: moving is a mover where the last of their boxes lies this far on from the first (``cue_min_distance`` or farther
+    #: from the sensor): a car that pulls away as the drive ends has no later scan to see its place empty, nor time to
     #: travel ``cue_travel`` (VLP-16 unseen8 narrow_street-10412: a car that waited ahead of the sensor for 90 scans,
     #: 0.35 m on when the drive ends; under SemanticKITTI's convention it moved while observed). Under the instant
     #: convention it moves now by the rules for every mover (:meth:`Tracker.pulling_away`) (0: off)
@@ -425,10 +425,11 @@ class Tracker:
         """{track id: PULLED_AWAY} for the tracks, movers by no other evidence, that the online model saw pull away
         as the drive ended (``TrackConfig.cue_end_travel``): still live at the drive's last scan (within
         ``max_missed`` scans of it), their last ``cue_observations`` or more observations labelled moving
-        (``cue_share``), and those observations' boxes ``cue_end_travel`` m apart among themselves,
-        ``cue_min_distance`` or farther from the sensor. Such a car has no later scan to see its place empty, nor
-        time to travel ``cue_travel``. Call it after :meth:`handovers` and :meth:`resumptions`: a track that is
-        their mover keeps their evidence."""
+        (``cue_share``), ``cue_min_distance`` or farther from the sensor, the last of those boxes ``cue_end_travel``
+        m on from the first (:func:`box_shift`: both edges; from the first to the last, not between any two: the
+        boxes of a parked car seen as 10 points jitter by more). Such a car has no later scan to see its place
+        empty, nor time to travel ``cue_travel``. Call it after :meth:`handovers` and :meth:`resumptions`: a track
+        that is their mover keeps their evidence."""
         cfg = self.config
         if cfg.cue_end_travel == 0:
             return {}
@@ -438,7 +439,11 @@ class Tracker:
             if track.id in movers or track.last.scan < live_until:
                 continue
             run = self._final_run(track)
-            if len(run) >= cfg.cue_observations and self._labelled_moving_along(run, cfg.cue_end_travel):
+            if len(run) < cfg.cue_observations or \
+                    float(np.median([o.distance for o in run])) < cfg.cue_min_distance:
+                continue
+            first, last = run[0], run[-1]  # from where it began to pull away to where the drive left it
+            if np.linalg.norm(box_shift(first.lo[:2], first.hi[:2], last.lo[:2], last.hi[:2])) >= cfg.cue_end_travel:
                 out[track.id] = PULLED_AWAY
         return out
 
@@ -455,10 +460,10 @@ class Tracker:
         """The drive's last scan: the last one added, else (tracks given whole) the last one any track saw."""
         return self.last_scan if self.last_scan >= 0 else max((t.last.scan for t in self.tracks), default=-1)
 
-    def _labelled_moving_along(self, observations: list[Observation], travel: float | None = None) -> bool:
+    def _labelled_moving_along(self, observations: list[Observation]) -> bool:
         cfg = self.config
-        return evidence_travel(observations, cfg.evidence_travel) >= (cfg.cue_travel if travel is None else travel) \
-            and float(np.median([o.distance for o in observations])) >= cfg.cue_min_distance
+        return evidence_travel(observations, cfg.evidence_travel) >= cfg.cue_travel and \
+            float(np.median([o.distance for o in observations])) >= cfg.cue_min_distance
 
     def _car_sized_as_it_ended(self, track: Track, beside: float, together: int = 1) -> bool:
         """Whether ``track``'s last box is ``handover_smaller`` to ``handover_larger`` times the footprint ``beside``
