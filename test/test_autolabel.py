@@ -616,14 +616,19 @@ def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_i
                                                 distance=24.0) for k, (lo, hi) in enumerate(jitter)]))
     assert tracker.movers() == {}  # none travelled 1.5 m (``cue_travel``), none was seen through
     # by hand: track 0's last 5 boxes, both edges 0.3 m along x (0.05 + 0.07 + 0.08 + 0.1), >= 0.25 m, 5.3 m >= 4 m
-    assert tracker.pulling_away({}) == {0: PULLED_AWAY, 5: PULLED_AWAY}
+    still = np.zeros((100, 2))  # the sensor waits behind it
+    assert tracker.pulling_away({}, still) == {0: PULLED_AWAY, 5: PULLED_AWAY}
+    # HDL-64E unseen8 easy-10431: the same boxes while the sensor drives on 0.5 m a scan (from scan 90: 2.5 m over
+    # track 0's last 5 observations, over 1 m): a parked car's box slides as the view of it changes
+    driving = np.c_[0.5 * np.maximum(np.arange(100) - 90, 0), np.zeros(100)]
+    assert tracker.pulling_away({}, driving) == {}
     assert [o.scan for o in tracker._final_run(tracker.tracks[0])] == [95, 96, 97, 98, 99]
     assert tracker._final_run(tracker.tracks[4]) == []
     # a track that is a mover by other evidence (here: a resumption's, or seen through) keeps it
-    assert tracker.pulling_away({0: SEEN_THROUGH}) == {5: PULLED_AWAY}
+    assert tracker.pulling_away({0: SEEN_THROUGH}, still) == {5: PULLED_AWAY}
     off = Tracker(dataclasses.replace(config, cue_end_travel=0.0))
     off.tracks, off.last_scan = tracker.tracks, 99
-    assert off.pulling_away({}) == {}
+    assert off.pulling_away({}, still) == {}
     # SemanticKITTI's convention: moving in every scan it was seen (it moved while observed); the instant one: by the
     # rules for every mover, not the model's word (it calls a bus waiting in a jam moving: VLP-32C unseen8
     # traffic_jam-10404). By hand, its box over 5 observations either side (fewer at the end): scan 97, 92 -> 99,
@@ -640,6 +645,8 @@ def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_i
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ConfigError, match="cue_end_travel"):
             TrackConfig(cue_end_travel=bad)
+        with pytest.raises(ConfigError, match="cue_end_still"):
+            TrackConfig(cue_end_still=bad)
 
 
 def test_a_scan_the_online_model_refuses_goes_without_the_cue(jam, tmp_path, monkeypatch):

@@ -91,6 +91,10 @@ class TrackConfig:
     #: 0.35 m on when the drive ends; under SemanticKITTI's convention it moved while observed). Under the instant
     #: convention it moves now by the rules for every mover (:meth:`Tracker.pulling_away`) (0: off)
     cue_end_travel: float = 0.25
+    #: m: ... where the sensor moved at most this far over those observations: a moving sensor's view of a parked car
+    #: slides its box's edges (HDL-64E unseen8 easy-10431: two parked cars passed as the drive ends, that the model
+    #: labels moving, 0.28 and 0.49 m of box while the sensor drove 3.6 and 5.0 m)
+    cue_end_still: float = 1.0
     #: scans: a track that ends within this many scans of where a mover's track begins (their boxes, grown by
     #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
     handover_scans: int = 3
@@ -146,7 +150,8 @@ class TrackConfig:
         check_numbers(self, "autolabel tracks",
                       zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
                                "handover_travel", "cue_travel", "cue_veto_share", "cue_min_distance", "resume_scans",
-                               "resume_stood", "resume_travel", "jump_gap", "jump_margin", "cue_end_travel"),
+                               "resume_stood", "resume_travel", "jump_gap", "jump_margin", "cue_end_travel",
+                               "cue_end_still"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller",
                                    "cue_veto_share"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
@@ -421,14 +426,15 @@ class Tracker:
         return any(self._labelled_moving_along(obs[a:b])
                    for a, b in zip(edges[::2], edges[1::2]) if b - a >= cfg.cue_observations)
 
-    def pulling_away(self, movers: dict[int, str]) -> dict[int, str]:
+    def pulling_away(self, movers: dict[int, str], sensor_xy: np.ndarray) -> dict[int, str]:
         """{track id: PULLED_AWAY} for the tracks, movers by no other evidence, that the online model saw pull away
         as the drive ended (``TrackConfig.cue_end_travel``): still live at the drive's last scan (within
         ``max_missed`` scans of it), their last ``cue_observations`` or more observations labelled moving
         (``cue_share``), ``cue_min_distance`` or farther from the sensor, the last of those boxes ``cue_end_travel``
         m on from the first (:func:`box_shift`: both edges; from the first to the last, not between any two: the
-        boxes of a parked car seen as 10 points jitter by more). Such a car has no later scan to see its place
-        empty, nor time to travel ``cue_travel``. Call it after :meth:`handovers` and :meth:`resumptions`: a track
+        boxes of a parked car seen as 10 points jitter by more), while the sensor (``sensor_xy``, (scans, 2) world
+        positions) moved ``cue_end_still`` m or less. Such a car has no later scan to see its place empty, nor time
+        to travel ``cue_travel``. Call it after :meth:`handovers` and :meth:`resumptions`: a track
         that is their mover keeps their evidence."""
         cfg = self.config
         if cfg.cue_end_travel == 0:
@@ -443,6 +449,9 @@ class Tracker:
                     float(np.median([o.distance for o in run])) < cfg.cue_min_distance:
                 continue
             first, last = run[0], run[-1]  # from where it began to pull away to where the drive left it
+            path = sensor_xy[[o.scan for o in run]]
+            if np.linalg.norm(path - path[0], axis=1).max() > cfg.cue_end_still:
+                continue  # the sensor moved: the view of a standing car changes, and its box slides
             if np.linalg.norm(box_shift(first.lo[:2], first.hi[:2], last.lo[:2], last.hi[:2])) >= cfg.cue_end_travel:
                 out[track.id] = PULLED_AWAY
         return out
