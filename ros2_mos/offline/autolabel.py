@@ -489,7 +489,7 @@ class AutoLabeler:
         out = set()
         for tid, evidence in result.movers.items():
             obs = result.tracker.tracks[tid].observations
-            if evidence in (ONLINE_MODEL, PULLED_AWAY):  # the online model's movers: every observation
+            if evidence in (ONLINE_MODEL, PULLED_AWAY):  # movers on the online model's word: every observation
                 out.update((o.scan, o.obj) for o in obs)
                 continue
             lo = np.array([o.lo[:2] for o in obs]) - cfg.support_margin

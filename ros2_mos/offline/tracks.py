@@ -440,13 +440,12 @@ class Tracker:
         if cfg.cue_end_travel == 0:
             return {}
         out = {}
-        live_until = self._drive_end() - cfg.max_missed
+        live_until = self.last_scan - cfg.max_missed
         for track in self.tracks:
             if track.id in movers or track.last.scan < live_until:
                 continue
             run = self._final_run(track)
-            if len(run) < cfg.cue_observations or \
-                    float(np.median([o.distance for o in run])) < cfg.cue_min_distance:
+            if len(run) < cfg.cue_observations or not self._far_from_sensor(run):
                 continue
             first, last = run[0], run[-1]  # from where it began to pull away to where the drive left it
             path = sensor_xy[[o.scan for o in run]]
@@ -465,14 +464,13 @@ class Tracker:
             start -= 1
         return obs[start:]
 
-    def _drive_end(self) -> int:
-        """The drive's last scan: the last one added, else (tracks given whole) the last one any track saw."""
-        return self.last_scan if self.last_scan >= 0 else max((t.last.scan for t in self.tracks), default=-1)
-
     def _labelled_moving_along(self, observations: list[Observation]) -> bool:
-        cfg = self.config
-        return evidence_travel(observations, cfg.evidence_travel) >= cfg.cue_travel and \
-            float(np.median([o.distance for o in observations])) >= cfg.cue_min_distance
+        return evidence_travel(observations, self.config.evidence_travel) >= self.config.cue_travel and \
+            self._far_from_sensor(observations)
+
+    def _far_from_sensor(self, observations: list[Observation]) -> bool:
+        """Whether ``observations`` stood ``cue_min_distance`` or farther from the sensor (their median)."""
+        return float(np.median([o.distance for o in observations])) >= self.config.cue_min_distance
 
     def _car_sized_as_it_ended(self, track: Track, beside: float, together: int = 1) -> bool:
         """Whether ``track``'s last box is ``handover_smaller`` to ``handover_larger`` times the footprint ``beside``
