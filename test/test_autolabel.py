@@ -649,6 +649,72 @@ def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_i
             TrackConfig(cue_end_still=bad)
 
 
+def test_a_track_seen_through_as_it_left_is_a_mover():
+    from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_LEAVING, Observation, Track, TrackConfig, Tracker
+
+    def track(tid: int, far: list[float], steps: list[float]) -> Track:
+        """A car 4.4 m long behind the waiting sensor, ``steps[k]`` m on along x after the observation before; ``far``:
+        the share of its points seen through."""
+        x = np.cumsum([0.0, *steps[1:]])
+        return Track(tid, [Observation(k, 0, np.array([-9.2 + xk, 0.1, 0.8]), 300, np.array([-11.4 + xk, -0.8, 0.0]),
+                                       np.array([-7.0 + xk, 1.0, 1.5]), share, share, distance=9.2)
+                           for k, (xk, share) in enumerate(zip(x, far))])
+
+    # VLP-32C unseen8 benchmark-10421: a car waits 73 scans, then drives off, seen through in its last 8 observations,
+    # 0.85 m on before its track ends: 8 of 81 seen through (< moving_share 0.2), 0.85 m (< min_evidence_travel)
+    waited, leaving = [0.0] * 73, [0.0, 0.05, 0.05, 0.1, 0.1, 0.15, 0.2, 0.2]
+    seen = [0.0] * 73 + [0.8] * 8
+    config = TrackConfig(cue_observations=5, leave_travel=0.25, seen_through=0.3, min_moving_observations=2)
+    tracker = Tracker(config)
+    tracker.tracks = [
+        track(0, seen, waited + leaving),
+        track(1, seen, waited + [0.0, 0.02, 0.02, 0.02, 0.02, 0.0, 0.0, 0.02]),  # 0.1 m: foliage seen into, standing
+        track(2, [0.0] * 77 + [0.8] * 4, waited + [0.0, 0.0, 0.0, 0.0, 0.1, 0.15, 0.2, 0.2]),  # 4 seen through: too few
+        track(3, [*seen[1:], 0.0], waited[1:] + leaving + [0.0]),  # the seen-through run does not end the track
+        track(4, [*seen[:-8], *[0.8, 0.8, 0.8, 0.2, 0.8, 0.8, 0.8, 0.8]], waited + leaving),  # one not seen through
+    ]
+    # HDL-64E suite benchmark-9102: a pole 0.2 m across, seen through at its edges as the sensor nears it, its box 0.5
+    # m on: no vehicle (its longer side under leave_min_length, 1 m)
+    pole = track(5, seen, waited + leaving)
+    for o in pole.observations:
+        o.lo[:2], o.hi[:2] = o.centroid[:2] - 0.1, o.centroid[:2] + 0.1
+    # the same car made of parts cut off for being seen through (2 x 41 > 81): it must travel min_evidence_travel
+    parts = track(6, seen, waited + leaving)
+    for o in parts.observations[:41]:
+        o.cut = True
+    tracker.tracks += [pole, parts]
+    assert tracker.movers() == {}
+    # by hand: track 0's last 8 boxes, both edges 0.85 m along x (0.05 + 0.05 + 0.1 + 0.1 + 0.15 + 0.2 + 0.2) >= 0.25;
+    # track 4's last 4 (0.65 m) are too few; track 1's 0.1 m is too little; tracks 5 and 6 as above
+    assert tracker.seen_leaving({}) == {0: SEEN_LEAVING}
+    assert tracker.seen_leaving({0: ONLINE_MODEL}) == {}  # a mover by other evidence keeps it
+    far_enough = Tracker(dataclasses.replace(config, leave_travel=0.9))
+    far_enough.tracks = tracker.tracks
+    assert far_enough.seen_leaving({}) == {}  # 0.85 m < 0.9 m
+    off = Tracker(dataclasses.replace(config, leave_travel=0.0))
+    off.tracks = tracker.tracks
+    assert off.seen_leaving({}) == {}
+    # SemanticKITTI's convention: every observation overlapping, from above, its seen-through boxes, so the scans it
+    # waited in too (it moved while observed); the instant convention: by the rules for every mover. By hand: scans
+    # 73-80 seen through by a near scan (0.8 >= instant_seen_through); scan 72, its box over 5 observations either side
+    # (67 -> 77) 0.3 m on in 1.0 s < 0.4 m/s (``instant_speed``): standing, as are those before
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, AutolabelResult
+
+    tracker.tracks = tracker.tracks[:1]
+    result = AutolabelResult("leaving", 81, np.repeat(np.eye(4)[None], 81, 0), np.arange(81) * 0.1, tracker,
+                             {0: SEEN_LEAVING}, [300] * 81)
+    labeler = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(tracks=config))
+    assert labeler._moving_ever(result) == {(k, 0) for k in range(81)}
+    assert labeler._moving_now(result) >= {(k, 0) for k in range(73, 81)}
+    assert not labeler._moving_now(result) & {(k, 0) for k in range(73)}
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="leave_travel"):
+            TrackConfig(leave_travel=bad)
+        with pytest.raises(ConfigError, match="leave_min_length"):
+            TrackConfig(leave_min_length=bad)
+
+
 def test_a_scan_the_online_model_refuses_goes_without_the_cue(jam, tmp_path, monkeypatch):
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.core.errors import ImplausibleScanError

@@ -251,6 +251,7 @@ class AutoLabeler:
         movers.update(tracker.handovers(movers))
         movers.update(tracker.resumptions(movers))
         movers.update(tracker.pulling_away(movers, poses[:, :2, 3]))
+        movers.update(tracker.seen_leaving(movers))
         result = AutolabelResult(drive.name, n, poses, stamps, tracker, movers, sizes,
                                  cue_model=self.cue_model.name if self.cue_model is not None else "",
                                  cue_skipped=cue_skipped, odometry_followed=followed, blind_radius=blind)

@@ -34,6 +34,8 @@ WAITED = "waited, then left"
 RESUMED = "seen again where it stood"
 #: A track that the online model saw pull away as the drive ended (:meth:`Tracker.pulling_away`).
 PULLED_AWAY = "pulling away as the drive ended"
+#: A track that was seen through in its last observations as it travelled on (:meth:`Tracker.seen_leaving`).
+SEEN_LEAVING = "seen through as it left"
 #: How far apart seen-through observations lie (:func:`evidence_travel`).
 EVIDENCE_TRAVEL = ("box", "centroid")
 
@@ -95,6 +97,18 @@ class TrackConfig:
     #: slides its box's edges (HDL-64E unseen8 easy-10431: two parked cars passed as the drive ends, that the model
     #: labels moving, 0.28 and 0.49 m of box while the sensor drove 3.6 and 5.0 m)
     cue_end_still: float = 1.0
+    #: m: a track, a mover by no other evidence, whose last ``cue_observations`` or more observations were seen through
+    #: is a mover where the last of their boxes lies this far on from the first: a car that waited long, then drove
+    #: off and was lost soon after (VLP-32C unseen8 benchmark-10421: 81 observations, the last 8 seen through, 0.85 m
+    #: of box travel before its track ended) is too little of its track, and travelled too little, for
+    #: ``moving_share`` and ``min_evidence_travel`` (:meth:`Tracker.seen_leaving`) (0: off)
+    leave_travel: float = 0.25
+    #: m: ... where the longer side of its median box is this long or longer: a vehicle, seen from any side (a car's
+    #: front seen as a sliver 1.8 m wide), not a pole, whose edges are seen through as the sensor nears it, nor a
+    #: person, whose box jitters by as much (HDL-64E suite benchmark-9102: a pole 0.2 m across, its last 5 boxes
+    #: seen through and 0.5 m on, 3,373 false moving points). A track made mostly of parts cut off for being seen
+    #: through is never one (it must travel ``min_evidence_travel``, as for :meth:`seen_moving`)
+    leave_min_length: float = 1.0
     #: scans: a track that ends within this many scans of where a mover's track begins (their boxes, grown by
     #: ``handover_margin`` metres, overlapping from above) is that mover, waiting (:meth:`Tracker.handovers`)
     handover_scans: int = 3
@@ -151,7 +165,7 @@ class TrackConfig:
                       zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
                                "handover_travel", "cue_travel", "cue_veto_share", "cue_min_distance", "resume_scans",
                                "resume_stood", "resume_travel", "jump_gap", "jump_margin", "cue_end_travel",
-                               "cue_end_still"),
+                               "cue_end_still", "leave_travel", "leave_min_length"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller",
                                    "cue_veto_share"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
@@ -453,6 +467,31 @@ class Tracker:
                 continue  # the sensor moved: the view of a standing car changes, and its box slides
             if np.linalg.norm(box_shift(first.lo[:2], first.hi[:2], last.lo[:2], last.hi[:2])) >= cfg.cue_end_travel:
                 out[track.id] = PULLED_AWAY
+        return out
+
+    def seen_leaving(self, movers: dict[int, str]) -> dict[int, str]:
+        """{track id: SEEN_LEAVING} for the tracks, movers by no other evidence, whose last ``cue_observations`` or
+        more observations were all seen through (:meth:`seen_through`) and the last of whose boxes lies
+        ``leave_travel`` m on from the first of them (:func:`box_shift`: both edges): it was leaving as its track
+        ended. Only vehicles (``leave_min_length``) and tracks not made mostly of parts cut off for being seen through
+        (:class:`Observation`'s ``cut``). Call it last: a track that is a mover by other evidence keeps that."""
+        cfg = self.config
+        if cfg.leave_travel == 0:
+            return {}
+        out = {}
+        for track in self.tracks:
+            obs = track.observations
+            if track.id in movers or 2 * sum(o.cut for o in obs) > len(obs) or \
+                    float(np.median([o.size[:2].max() for o in obs])) < cfg.leave_min_length:
+                continue
+            start = len(obs)
+            while start > 0 and self.seen_through(obs[start - 1]):
+                start -= 1
+            if len(obs) - start < cfg.cue_observations:
+                continue
+            first, last = obs[start], obs[-1]
+            if np.linalg.norm(box_shift(first.lo[:2], first.hi[:2], last.lo[:2], last.hi[:2])) >= cfg.leave_travel:
+                out[track.id] = SEEN_LEAVING
         return out
 
     def _final_run(self, track: Track) -> list[Observation]:
