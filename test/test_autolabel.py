@@ -660,8 +660,8 @@ def test_a_track_seen_through_as_it_left_is_a_mover():
                                        np.array([-7.0 + xk, 1.0, 1.5]), share, share, distance=9.2)
                            for k, (xk, share) in enumerate(zip(x, far))])
 
-    # VLP-32C unseen8 benchmark-10421: a car waits 73 scans, then drives off, seen through in its last 8 observations,
-    # 0.85 m on before its track ends: 8 of 81 seen through (< moving_share 0.2), 0.85 m (< min_evidence_travel)
+    # like VLP-32C unseen8 benchmark-10421's: a car waits 73 scans, then drives off, seen through in its last 8
+    # observations, 0.85 m on before its track ends: 8 of 81 seen through (< moving_share 0.2), 0.85 m (< 1.5 m)
     waited, leaving = [0.0] * 73, [0.0, 0.05, 0.05, 0.1, 0.1, 0.15, 0.2, 0.2]
     seen = [0.0] * 73 + [0.8] * 8
     config = TrackConfig(cue_observations=5, leave_travel=0.25, seen_through=0.3, min_moving_observations=2)
@@ -684,6 +684,7 @@ def test_a_track_seen_through_as_it_left_is_a_mover():
         o.cut = True
     tracker.tracks += [pole, parts]
     assert tracker.movers() == {}
+    assert [o.scan for o in tracker._final_run(tracker.tracks[0], seen_through=True)] == list(range(73, 81))
     # by hand: track 0's last 8 boxes, both edges 0.85 m along x (0.05 + 0.05 + 0.1 + 0.1 + 0.15 + 0.2 + 0.2) >= 0.25;
     # track 4's last 4 (0.65 m) are too few; track 1's 0.1 m is too little; tracks 5 and 6 as above
     assert tracker.seen_leaving({}) == {0: SEEN_LEAVING}

@@ -99,7 +99,7 @@ class TrackConfig:
     cue_end_still: float = 1.0
     #: m: a track, a mover by no other evidence, whose last ``cue_observations`` or more observations were seen through
     #: is a mover where the last of their boxes lies this far on from the first: a car that waited long, then drove
-    #: off and was lost soon after (VLP-32C unseen8 benchmark-10421: 81 observations, the last 8 seen through, 0.85 m
+    #: off and was lost soon after (VLP-32C unseen8 benchmark-10421: 83 observations, the last 9 seen through, 0.85 m
     #: of box travel before its track ended) is too little of its track, and travelled too little, for
     #: ``moving_share`` and ``min_evidence_travel`` (:meth:`Tracker.seen_leaving`) (0: off)
     leave_travel: float = 0.25
@@ -484,22 +484,21 @@ class Tracker:
             if track.id in movers or 2 * sum(o.cut for o in obs) > len(obs) or \
                     float(np.median([o.size[:2].max() for o in obs])) < cfg.leave_min_length:
                 continue
-            start = len(obs)
-            while start > 0 and self.seen_through(obs[start - 1]):
-                start -= 1
-            if len(obs) - start < cfg.cue_observations:
+            run = self._final_run(track, seen_through=True)
+            if len(run) < cfg.cue_observations:
                 continue
-            first, last = obs[start], obs[-1]
+            first, last = run[0], run[-1]
             if np.linalg.norm(box_shift(first.lo[:2], first.hi[:2], last.lo[:2], last.hi[:2])) >= cfg.leave_travel:
                 out[track.id] = SEEN_LEAVING
         return out
 
-    def _final_run(self, track: Track) -> list[Observation]:
-        """The observations at the end of ``track`` that the online model labelled moving (``cue_share``), back to
-        the last one it did not."""
+    def _final_run(self, track: Track, seen_through: bool = False) -> list[Observation]:
+        """The observations at the end of ``track`` that the online model labelled moving (``cue_share``), or with
+        ``seen_through`` that were seen through (:meth:`seen_through`), back to the last one that was not."""
         obs = track.observations
         start = len(obs)
-        while start > 0 and obs[start - 1].online >= self.config.cue_share:
+        while start > 0 and (self.seen_through(obs[start - 1]) if seen_through
+                             else obs[start - 1].online >= self.config.cue_share):
             start -= 1
         return obs[start:]
 
