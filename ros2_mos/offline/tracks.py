@@ -245,6 +245,12 @@ def box_shift(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray
     return np.where(cut_lo, np.where(cut_hi, 0.0, d_hi), np.where(cut_hi, d_lo, shift))
 
 
+def _moved_on(observations: list[Observation]) -> float:
+    """How far (m, seen from above) the last of ``observations``' boxes lies on from the first (:func:`box_shift`)."""
+    first, last = observations[0], observations[-1]
+    return float(np.linalg.norm(box_shift(first.lo[:2], first.hi[:2], last.lo[:2], last.hi[:2])))
+
+
 #: :func:`evidence_travel` compares at most about this many observations, evenly spread over the track (and its last):
 #: the pairs of a track thousands of scans long would take gigabytes.
 TRAVEL_MAX_BOXES = 256
@@ -415,7 +421,7 @@ class Tracker:
         if len(evidence) < cfg.min_moving_observations:
             return False
         travelled = evidence_travel(evidence, cfg.evidence_travel) >= cfg.min_evidence_travel
-        if 2 * sum(o.cut for o in track.observations) > len(track.observations):
+        if self._mostly_cut(track):
             return travelled  # parts cut off for being seen through (a pole beside a hedge): only if they travel
         if travelled:
             return True
@@ -461,11 +467,10 @@ class Tracker:
             run = self._final_run(track)
             if len(run) < cfg.cue_observations or not self._far_from_sensor(run):
                 continue
-            first, last = run[0], run[-1]  # from where it began to pull away to where the drive left it
             path = sensor_xy[[o.scan for o in run]]
             if np.linalg.norm(path - path[0], axis=1).max() > cfg.cue_end_still:
                 continue  # the sensor moved: the view of a standing car changes, and its box slides
-            if np.linalg.norm(box_shift(first.lo[:2], first.hi[:2], last.lo[:2], last.hi[:2])) >= cfg.cue_end_travel:
+            if _moved_on(run) >= cfg.cue_end_travel:  # from where it began to pull away to where the drive left it
                 out[track.id] = PULLED_AWAY
         return out
 
@@ -481,16 +486,18 @@ class Tracker:
         out = {}
         for track in self.tracks:
             obs = track.observations
-            if track.id in movers or 2 * sum(o.cut for o in obs) > len(obs) or \
+            if track.id in movers or self._mostly_cut(track) or \
                     float(np.median([o.size[:2].max() for o in obs])) < cfg.leave_min_length:
                 continue
             run = self._final_run(track, seen_through=True)
-            if len(run) < cfg.cue_observations:
-                continue
-            first, last = run[0], run[-1]
-            if np.linalg.norm(box_shift(first.lo[:2], first.hi[:2], last.lo[:2], last.hi[:2])) >= cfg.leave_travel:
+            if len(run) >= cfg.cue_observations and _moved_on(run) >= cfg.leave_travel:
                 out[track.id] = SEEN_LEAVING
         return out
+
+    @staticmethod
+    def _mostly_cut(track: Track) -> bool:
+        """Whether most of ``track``'s observations are parts cut off an object for being seen through."""
+        return 2 * sum(o.cut for o in track.observations) > len(track.observations)
 
     def _final_run(self, track: Track, seen_through: bool = False) -> list[Observation]:
         """The observations at the end of ``track`` that the online model labelled moving (``cue_share``), or with
