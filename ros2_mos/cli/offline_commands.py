@@ -22,6 +22,10 @@ def autolabel(
     topic: Optional[str] = typer.Option(None, help="PointCloud2 topic of a bag (default: its only one)"),
     use_poses: bool = typer.Option(False, "--use-poses", help="The drive's poses.txt instead of KISS-ICP"),
     png: bool = typer.Option(False, "--png", help="Also write movers.png: a bird's-eye picture, movers by track"),
+    deskew: bool = typer.Option(False, "--deskew/--no-deskew",
+                                help="Deskew each scan first (its motion from the poses around it, each point at its "
+                                     "azimuth's firing time): for real sweeps without motion compensation (KITTI's, "
+                                     "most drivers'); not for the simulator's, which are not skewed by default"),
 ) -> None:
     """Label every scan of whole drives moving (251) / static (9) using past AND future scans (offline)."""
     import time
@@ -44,7 +48,7 @@ def autolabel(
     for d in opened:
         if (out / "sequences" / d.name).exists():
             fail(f"{out / 'sequences' / d.name} already exists; remove it or choose another --out")
-    config = AutolabelConfig(use_poses=use_poses)
+    config = AutolabelConfig(use_poses=use_poses, deskew=deskew)
     for drive in opened:
         if sensor is None:
             first = next(iter(drive))
@@ -69,5 +73,6 @@ def autolabel(
             cue += f" ({result.cue_skipped} scans it refused went without)"
         backwards = result.odometry_followed == "b"
         poses = ", poses from KISS-ICP run backwards (forwards it fell behind)" if backwards else ""
+        poses += ", scans deskewed" if result.deskewed else ""
         typer.echo(f"wrote {folder}: {n} scans, {len(result.movers)} movers, {100 * share:.2f} % of points moving "
                    f"({convention}), {cue}{poses}, {n / seconds:.1f} scans/s")

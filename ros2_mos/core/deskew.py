@@ -1,0 +1,78 @@
+"""Motion compensation of a rotating LiDAR's sweep (deskewing) from the poses of the scans around it.
+
+A spinning sensor fires its columns one after another over one scan period while the vehicle moves, so each point
+is measured from the pose of its own firing time: a real scan is *skewed* (KITTI's and most drivers' clouds are;
+the simulator's are with ``--intra-sweep-motion``). At 6 m/s the points behind the sensor, fired first and last, lie
+0.3 m off either way. Scans compared from far apart then disagree where an object's bearing changed, and a thin
+static pole or bollard that the sensor drives past is "seen through" by another scan.
+
+The sweep is KITTI's Velodyne convention (the simulator's too): it starts behind the sensor (azimuth +pi) and turns
+clockwise seen from above, through the left and the front (phase 0, the scan's pose) to the right and back
+(KISS-ICP's KITTI timestamps the same way). Without per-point times, a point's firing phase is its azimuth's
+(:func:`sweep_phase`); the sensor's motion over the sweep is the twist between the poses before and after
+(:func:`scan_motions`, constant velocity), and :func:`deskew` moves each point into the frame of the scan's pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ros2_mos.core.errors import ConfigError
+
+
+def sweep_phase(points: np.ndarray) -> np.ndarray:
+    """Per (N, 3+) point, its firing time relative to the scan's pose, in sweeps: -0.5 behind at the start, 0 ahead,
+    +0.5 behind at the end (azimuth +pi -> -pi, clockwise)."""
+    return (-np.arctan2(points[:, 1], points[:, 0]) / (2.0 * np.pi)).astype(np.float64)
+
+
+def rotation_log(rotation: np.ndarray) -> np.ndarray:
+    """The rotation vector (axis times angle, radians) of a 3x3 rotation matrix."""
+    cos = np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)
+    angle = float(np.arccos(cos))
+    skew = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]])
+    if angle < 1e-9:
+        return skew / 2.0
+    return skew * (angle / (2.0 * np.sin(angle)))
+
+
+def scan_motions(poses: np.ndarray) -> np.ndarray:
+    """Per scan of (N, 4, 4) world poses, the sensor's motion over one scan period in the scan's own frame: (N, 6),
+    rotation vector then translation. The mean of the steps from the scan before and to the scan after (one of them
+    at either end of the drive); zeros for a single scan."""
+    poses = np.asarray(poses, np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ConfigError(f"scan_motions: poses must be (N, 4, 4), got {poses.shape}")
+    n = len(poses)
+    steps = np.zeros((max(n - 1, 0), 6))
+    for k in range(n - 1):
+        relative = np.linalg.inv(poses[k]) @ poses[k + 1]
+        steps[k, :3] = rotation_log(relative[:3, :3])
+        steps[k, 3:] = relative[:3, 3]
+    out = np.zeros((n, 6))
+    if n < 2:
+        return out
+    out[0], out[-1] = steps[0], steps[-1]
+    out[1:-1] = (steps[:-1] + steps[1:]) / 2.0
+    return out
+
+
+def deskew(points: np.ndarray, motion: np.ndarray) -> np.ndarray:
+    """The (N, 3) points of one skewed sweep moved into the frame of the scan's pose (float32, same order): a point
+    fired at phase s (:func:`sweep_phase`) was measured from the pose moved by s times ``motion`` (rotation vector,
+    translation: :func:`scan_motions`)."""
+    motion = np.asarray(motion, np.float64)
+    if motion.shape != (6,) or not np.all(np.isfinite(motion)):
+        raise ConfigError(f"deskew: motion must be 6 finite numbers, got {motion!r}")
+    xyz = np.asarray(points[:, :3], np.float64)
+    phase = sweep_phase(xyz)
+    omega, velocity = motion[:3], motion[3:]
+    angle = float(np.linalg.norm(omega))
+    out = xyz + phase[:, None] * velocity[None, :]
+    if angle > 0:
+        axis = omega / angle
+        theta = phase * angle
+        cos, sin = np.cos(theta)[:, None], np.sin(theta)[:, None]
+        along = (xyz @ axis)[:, None] * axis[None, :]
+        out += xyz * (cos - 1.0) + np.cross(axis[None, :], xyz) * sin + along * (1.0 - cos)
+    return out.astype(np.float32)
