@@ -14,6 +14,7 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --seeds unseen8        # round 32's check of rounds 31-32
     python benchmarks/autolabel.py --seeds validation --no-online --set instant_speed=0.6 --set instant_span=3
     python benchmarks/autolabel.py --seeds validation --no-online --set objects.attach_distance=0.4
+    python benchmarks/autolabel.py --data data/skewed --intra-sweep-motion --no-online --set deskew=true
 
 Drives are simulated into --data (reused); KISS-ICP poses for both. Prints a Markdown table: per drive the moving
 IoU of autolabel and of the online model under SemanticKITTI's and the instant convention, autolabel's precision
@@ -77,6 +78,8 @@ UNSEEN7_SEEDS = {"traffic_jam": (10301, 10302, 10303, 10304), "narrow_street": (
 #: Round 32's check of rounds 31-32 (first scored when round 32's rule was chosen on the other sets).
 UNSEEN8_SEEDS = {"traffic_jam": (10401, 10402, 10403, 10404), "narrow_street": (10411, 10412, 10413),
                  "benchmark": (10421, 10422), "easy": (10431, 10432)}
+#: In a --data root of drives simulated with skewed sweeps (--intra-sweep-motion): mixing them with others is refused.
+SKEWED_MARKER = "SKEWED_SWEEPS"
 SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_SEEDS, "unseen": UNSEEN_SEEDS,
              "unseen2": UNSEEN2_SEEDS, "unseen3": UNSEEN3_SEEDS, "unseen4": UNSEEN4_SEEDS, "unseen5": UNSEEN5_SEEDS,
              "unseen6": UNSEEN6_SEEDS, "unseen7": UNSEEN7_SEEDS, "unseen8": UNSEEN8_SEEDS}
@@ -126,6 +129,8 @@ def main() -> None:
     parser.add_argument("--seeds", choices=tuple(SEED_SETS), default="suite")
     parser.add_argument("--scans", type=int, default=100)
     parser.add_argument("--no-online", action="store_true", help="skip the online model's columns")
+    parser.add_argument("--intra-sweep-motion", action="store_true",
+                        help="drives with skewed sweeps (simulated into --data, which must hold no others)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="an AutolabelConfig setting other than its default (a number or a word)")
     args = parser.parse_args()
@@ -151,8 +156,15 @@ def main() -> None:
                                            for part, values in nested.items() if values})
     changes.update({f"{part}.{k}": v for part, values in nested.items() for k, v in values.items()})
     seeds = SEED_SETS[args.seeds]
+    marker = args.data / SKEWED_MARKER
+    if (args.data / "sequences").is_dir() and marker.is_file() != args.intra_sweep_motion:
+        parser.error(f"{args.data} holds drives {'with' if marker.is_file() else 'without'} skewed sweeps; "
+                     f"{'give' if marker.is_file() else 'leave out'} --intra-sweep-motion or choose another --data")
+    if args.intra_sweep_motion:
+        args.data.mkdir(parents=True, exist_ok=True)
+        marker.write_text("drives simulated with --intra-sweep-motion\n")
     print(f"autolabel benchmark, {time.strftime('%Y-%m-%d')}: {args.seeds} drives, {args.scans} scans, "
-          f"KISS-ICP poses, settings {changes or 'default'}\n")
+          f"KISS-ICP poses, settings {changes or 'default'}{', skewed sweeps' if args.intra_sweep_motion else ''}\n")
     cols = ["auto semantickitti", "online semantickitti", "auto instant", "online instant", "precision", "recall",
             "scans/s"]
     print("| sensor | drive | " + " | ".join(cols) + " |")
@@ -160,7 +172,7 @@ def main() -> None:
     for sensor in args.sensors:
         root = args.data if sensor == "hdl64" else args.data / sensor
         rows = []
-        for _, name, folder in ensure_sim_sequences(root, args.scans, seeds, print, sensor):
+        for _, name, folder in ensure_sim_sequences(root, args.scans, seeds, print, sensor, args.intra_sweep_motion):
             rows.append(score_drive(folder, sensor, not args.no_online, config))
             print(f"| {sensor} | {name} | " + " | ".join(cells(rows[-1], cols)) + " |", flush=True)
         mean = {c: float(np.mean([r[c] for r in rows])) for c in rows[0]}

@@ -147,9 +147,11 @@ def score_sequence(pipeline: MosPipeline, sequence: SemanticKittiSequence, name:
 
 def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...]] = SIM_SEEDS,
                          log: Callable[[str], None] = lambda s: None,
-                         sensor: str = "hdl64") -> list[tuple[str, str, Path]]:
-    """(preset, row name, sequence folder) of the suite's simulated sequences, simulating missing ones."""
-    from ros2_mos.sim import sim_preset, simulate_sequence
+                         sensor: str = "hdl64", skewed: bool = False) -> list[tuple[str, str, Path]]:
+    """(preset, row name, sequence folder) of the suite's simulated sequences, simulating missing ones (``skewed``:
+    each column cast from the pose of its firing time, ``--intra-sweep-motion``; keep such drives in a root of their
+    own)."""
+    from ros2_mos.sim import sim_preset, simulate_sequence, with_effects
 
     out = []
     for preset, preset_seeds in seeds.items():
@@ -159,7 +161,9 @@ def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...
             # A folder of an older version (without both label conventions) is simulated anew.
             if not (folder / "poses.txt").is_file() or len(label_dirs(folder)) < 2:
                 log(f"simulating {name} ({scans} scans) into {folder}")
-                simulate_sequence(root, name, scans, sim_preset(preset), seed, sensor)
+                sim = sim_preset(preset)
+                simulate_sequence(root, name, scans, with_effects(sim, intra_sweep_motion=True) if skewed else sim,
+                                  seed, sensor)
             out.append((preset, name, folder))
     return out
 
