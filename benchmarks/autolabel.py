@@ -14,7 +14,7 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --seeds unseen8        # round 32's check of rounds 31-32
     python benchmarks/autolabel.py --seeds validation --no-online --set instant_speed=0.6 --set instant_span=3
     python benchmarks/autolabel.py --seeds validation --no-online --set objects.attach_distance=0.4
-    python benchmarks/autolabel.py --data data/skewed --intra-sweep-motion --no-online --set deskew=true
+    python benchmarks/autolabel.py --data data/skewed --intra-sweep-motion --no-online --set deskew=on
 
 Drives are simulated into --data (reused); KISS-ICP poses for both. Prints a Markdown table: per drive the moving
 IoU of autolabel and of the online model under SemanticKITTI's and the instant convention, autolabel's precision

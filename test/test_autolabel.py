@@ -4,6 +4,7 @@ its command end to end on a simulated drive."""
 from __future__ import annotations
 
 import dataclasses
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from drive_scenes import SENSOR, WALL, Mover, write_drive
 from typer.testing import CliRunner
 
 from ros2_mos.cli import app
-from ros2_mos.core.config import SensorConfig
+from ros2_mos.core.config import SensorConfig, sensor_preset
 from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.core.projection import pixel_index
 from ros2_mos.io.labels import instance_ids, semantic_ids
@@ -355,7 +356,7 @@ def test_config_is_checked():
                 {"instant_seen_through": 1.5}, {"instant_speed": float("inf")}, {"support_margin": -0.1},
                 {"odometry_margin": float("nan")}, {"odometry_margin_share": -0.01}, {"odometry_prefer": "b"},
                 {"instant_motion": "speed"}, {"cue_attach": -1.0}, {"cue_attach": float("nan")},
-                {"cue_attach": float("inf")}):
+                {"cue_attach": float("inf")}, {"deskew": "yes"}, {"deskew": True}):
         with pytest.raises(ConfigError):
             AutolabelConfig(**bad)
     for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
@@ -1387,20 +1388,46 @@ def test_a_drive_scan_keeps_the_finite_points_with_a_range_and_says_where_they_s
 
 def test_deskewing_a_skewed_drive_drops_the_static_points_it_calls_moving(tmp_path):
     """A simulated VLP-32C drive whose sweeps are skewed (``--intra-sweep-motion``, as real sweeps are): static
-    points seen through by scans far apart because each sweep is bent by the drive. Deskewed (``--deskew``), autolabel
-    calls a quarter as many static points moving under SemanticKITTI's convention (measured: 804 -> 210), and says
-    it deskewed."""
+    points seen through by scans far apart because each sweep is bent by the drive. Deskewed, autolabel calls a
+    quarter as many static points moving under SemanticKITTI's convention (measured: 804 -> 210). ``--deskew auto``
+    (the default) deskews because the folder's sweep.txt says skewed; ``off`` does not; the summary says which."""
     result = runner.invoke(app, ["simulate", str(tmp_path / "sim"), "--sequences", "00", "--scans", "40", "--preset",
                                  "easy", "--sensor", "vlp32c", "--seed", "5", "--intra-sweep-motion"])
     assert result.exit_code == 0, result.output
+    assert (tmp_path / "sim" / "sequences" / "00" / "sweep.txt").read_text().strip() == "skewed"
     false_moving = {}
-    for flag in ("--deskew", "--no-deskew"):
-        out = tmp_path / flag.strip("-")
-        result = runner.invoke(app, ["autolabel", str(tmp_path / "sim" / "sequences" / "00"), "--out", str(out), flag])
+    for mode in ("auto", "off"):
+        out = tmp_path / mode
+        result = runner.invoke(app, ["autolabel", str(tmp_path / "sim" / "sequences" / "00"), "--out", str(out),
+                                     "--deskew", mode])
         assert result.exit_code == 0, result.output
-        assert ("scans deskewed" in result.output) == (flag == "--deskew")
+        assert ("scans deskewed" in result.output) == (mode == "auto")
         result = runner.invoke(app, ["eval", str(out), str(tmp_path / "sim"), "--convention", "semantickitti"])
         assert result.exit_code == 0, result.output
-        false_moving[flag] = int(next(line.split()[3] for line in result.output.splitlines()
+        false_moving[mode] = int(next(line.split()[3] for line in result.output.splitlines()
                                       if line.startswith("       all")))
-    assert false_moving["--deskew"] < 0.5 * false_moving["--no-deskew"], false_moving
+    assert false_moving["auto"] < 0.5 * false_moving["off"], false_moving
+
+
+def test_deskew_auto_follows_the_drive_s_word_and_on_off_override_it(jam, tmp_path):
+    """The jam was simulated without intra-sweep motion: its sweep.txt says compensated, so 'auto' leaves it; a
+    folder without sweep.txt (real data) is left too; 'on' deskews either. An unknown mode or sweep.txt word is one
+    clear line."""
+    folder = jam / "sequences" / "00"
+    assert (folder / "sweep.txt").read_text().strip() == "compensated"
+    assert FolderDrive(folder).skewed is False
+    bare = tmp_path / "bare"
+    shutil.copytree(folder, bare)
+    (bare / "sweep.txt").unlink()
+    assert FolderDrive(bare).skewed is None
+    sensor = sensor_preset("vlp32c")
+    assert not AutoLabeler(sensor).deskews(FolderDrive(folder))
+    assert not AutoLabeler(sensor).deskews(FolderDrive(bare))
+    assert AutoLabeler(sensor, AutolabelConfig(deskew="on")).deskews(FolderDrive(bare))
+    assert not AutoLabeler(sensor, AutolabelConfig(deskew="off")).deskews(FolderDrive(folder))
+    (bare / "sweep.txt").write_text("wobbly\n")
+    with pytest.raises(DatasetError, match="sweep.txt.*'wobbly'"):
+        FolderDrive(bare)
+    result = runner.invoke(app, ["autolabel", str(folder), "--out", str(tmp_path / "out"), "--deskew", "yes"])
+    assert result.exit_code != 0 and "unknown --deskew 'yes'" in result.output
+    assert not (tmp_path / "out").exists()

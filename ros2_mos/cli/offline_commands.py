@@ -22,10 +22,10 @@ def autolabel(
     topic: Optional[str] = typer.Option(None, help="PointCloud2 topic of a bag (default: its only one)"),
     use_poses: bool = typer.Option(False, "--use-poses", help="The drive's poses.txt instead of KISS-ICP"),
     png: bool = typer.Option(False, "--png", help="Also write movers.png: a bird's-eye picture, movers by track"),
-    deskew: bool = typer.Option(False, "--deskew/--no-deskew",
-                                help="Deskew each scan first (its motion from the poses around it, each point at its "
-                                     "azimuth's firing time): for real sweeps without motion compensation (KITTI's, "
-                                     "most drivers'); not for the simulator's, which are not skewed by default"),
+    deskew: str = typer.Option("auto", help="Deskew each scan first (its motion from the poses around it, each "
+                               "point at its azimuth's firing time; the sweep from behind, clockwise): on for sweeps "
+                               "no driver compensated (KITTI raw's), off for compensated ones (SemanticKITTI's); "
+                               "auto: where the drive's sweep.txt says skewed (the simulator writes it), else off"),
 ) -> None:
     """Label every scan of whole drives moving (251) / static (9) using past AND future scans (offline)."""
     import time
@@ -35,11 +35,13 @@ def autolabel(
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.core.sensor_check import closest_preset, cloud_shape
     from ros2_mos.io.conventions import CONVENTIONS
-    from ros2_mos.offline.autolabel import AutolabelConfig, autolabel_drive, progress_steps
+    from ros2_mos.offline.autolabel import DESKEW, AutolabelConfig, autolabel_drive, progress_steps
     from ros2_mos.offline.drives import open_drive
 
     if convention not in CONVENTIONS:
         fail(f"unknown --convention {convention!r}: use one of {', '.join(CONVENTIONS)}")
+    if deskew not in DESKEW:
+        fail(f"unknown --deskew {deskew!r}: use one of {', '.join(DESKEW)}")
     check_output(out, "--out", folder=True)
     opened = [open_drive(d, topic) for d in drives]
     names = [d.name for d in opened]

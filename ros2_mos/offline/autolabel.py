@@ -84,6 +84,8 @@ ODOMETRY_PASSES = {"forward": "f", "backward": "b"}
 #: How the instant convention measures an object's motion between observations: the box edges that moved together
 #: (:func:`box_shift`), or the centroid (slides while the sensor passes a standing object).
 INSTANT_MOTION = ("box", "centroid")
+#: ``AutolabelConfig.deskew``: 'auto' deskews where the drive says its sweeps are skewed (``Drive.skewed``).
+DESKEW = ("auto", "on", "off")
 #: An observation of a mover found by the online cue moves now where the online model labelled at least this share
 #: of its points moving.
 CUE_MOVING_NOW = 0.5
@@ -146,13 +148,15 @@ class AutolabelConfig:
     #: moving: a car creeping past the sensor, whose visible box grows at one end and shrinks at the other. Not where
     #: its box stood still: the model calls a queue moving while it waits (0: off; the box rule only)
     instant_cue_reshape: float = 0.2
-    #: Each scan is deskewed before objects and visibility (:mod:`~ros2_mos.core.deskew`: its points moved into the
-    #: frame of the scan's pose by the motion between the poses around it, each at its azimuth's firing time). Real
-    #: sweeps are skewed (KITTI's are); then scans far apart disagree where an object's bearing changed, and thin
-    #: static poles and bollards the sensor passes are seen through: on the real r2, 49 of 103 movers. Off by
-    #: default: a scan that is not skewed (the simulator's by default) is skewed by it (benchmarks/autolabel.md,
-    #: round 39)
-    deskew: bool = False
+    #: Each scan deskewed before objects and visibility (:mod:`~ros2_mos.core.deskew`: its points moved into the
+    #: frame of the scan's pose by the motion between the poses around it, each at its azimuth's firing time):
+    #: 'on', 'off', or 'auto': where the drive says its sweeps are skewed (``sweep.txt``, :mod:`ros2_mos.io.sweep`;
+    #: the simulator writes it). Sweeps no driver compensated (KITTI raw's) disagree between scans far apart where
+    #: an object's bearing changed, and thin static posts the sensor passes are seen through (real r2: 49 of 103
+    #: movers); a sweep that is not skewed (SemanticKITTI's, the simulator's by default) is bent by it the other way
+    #: (one simulated drive 93.3 -> 10.3): so never on without the drive's or the user's word
+    #: (benchmarks/autolabel.md, round 39)
+    deskew: str = "auto"
 
     def __post_init__(self) -> None:
         offsets = (*self.near_offsets, *self.far_offsets)
@@ -161,6 +165,8 @@ class AutolabelConfig:
         if self.odometry_prefer not in ODOMETRY_PASSES:
             raise ConfigError(f"autolabel: odometry_prefer must be one of {', '.join(ODOMETRY_PASSES)}, got "
                               f"{self.odometry_prefer!r}")
+        if self.deskew not in DESKEW:
+            raise ConfigError(f"autolabel: deskew must be one of {', '.join(DESKEW)}, got {self.deskew!r}")
         if self.instant_motion not in INSTANT_MOTION:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
@@ -253,7 +259,7 @@ class AutoLabeler:
         vehicle = VehicleReturns(self.config.objects)
         poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
         tracker = Tracker(self.config.tracks)
-        motions = scan_motions(poses) if self.config.deskew else None
+        motions = scan_motions(poses) if self.deskews(drive) else None
         cue_skipped, blind = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir,
                                                         progress, motions)
         tracker.cut_jumps()
@@ -272,6 +278,12 @@ class AutoLabeler:
             result.moving_ever |= now
         result.moving_now = now & result.moving_ever  # moving now: where it moved at all
         return result
+
+    def deskews(self, drive: Drive) -> bool:
+        """Whether ``drive``'s scans are deskewed (``AutolabelConfig.deskew``; 'auto': where the drive says its
+        sweeps are skewed)."""
+        mode = self.config.deskew
+        return mode == "on" or (mode == "auto" and getattr(drive, "skewed", None) is True)
 
     def _poses(self, drive: Drive, vehicle: VehicleReturns, workdir: Path,
                progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int], str]:

@@ -13,6 +13,7 @@ from typing import Iterator, Protocol
 import numpy as np
 
 from ros2_mos.core.errors import DatasetError
+from ros2_mos.io.sweep import read_sweep_file
 
 
 @dataclass
@@ -28,6 +29,7 @@ class DriveScan:
 class Drive(Protocol):
     name: str
     poses: np.ndarray | None  # (N, 4, 4) LiDAR poses where the drive has them
+    skewed: bool | None  # its sweeps are skewed (True) or compensated (False), where the drive says (sweep.txt)
 
     def __len__(self) -> int: ...
 
@@ -58,6 +60,7 @@ class FolderDrive:
         self.name = self.sequence.name
         self.poses = self.sequence.poses[: len(self.sequence)] if self.sequence.poses is not None else None
         self.scan_names = [f.stem for f in self.sequence.scan_files]
+        self.skewed = read_sweep_file(root)
 
     def __len__(self) -> int:
         return len(self.sequence)
@@ -81,6 +84,7 @@ class BagDrive:
         self.topic = pointcloud_topic(self.path, topic)  # raises when the bag has none
         self.name = self.path.name
         self.poses = None
+        self.skewed = None  # per-point time fields are not read yet
         self.stamps = [stamp for stamp, _ in iter_pointclouds(self.path, self.topic)]
         self.scan_names = [f"{i:06d}" for i in range(len(self.stamps))]
 

@@ -27,6 +27,7 @@ from ros2_mos.io.semantic_kitti import (
     write_scan,
     write_times,
 )
+from ros2_mos.io.sweep import write_sweep_file
 from ros2_mos.sim.presets import SimPreset
 from ros2_mos.sim.stats import SequenceStats
 from ros2_mos.sim.traffic import relabel_movers
@@ -65,6 +66,7 @@ def simulate_sequence(
     for folder in (root / "velodyne", *folders.values()):
         folder.mkdir(parents=True, exist_ok=True)
     write_convention_file(root, convention)
+    write_sweep_file(root, sim.preset.effects.intra_sweep_motion)
     movers = sim.traffic.observed_movers(sim.lidar.max_range)
     stats = SequenceStats(name)
     agents = {a.inst: a for a in sim.traffic.agents}
