@@ -90,3 +90,59 @@ def test_a_skewed_sweep_deskewed_lies_on_the_yards_surfaces() -> None:
     assert off_surfaces(skewed.points) > 0.3
     assert off_surfaces(deskew(skewed.points, motion)) < 0.05
     assert off_surfaces(deskew(skewed.points, -motion)) > off_surfaces(skewed.points)
+
+
+def test_a_clouds_own_point_times_give_the_phases_and_deskew_takes_them() -> None:
+    """An Ouster-like cloud with ``t`` in ns over one sweep (0 to 100 ms): phases -0.5 to 0.5, linear; a point with a
+    NaN coordinate is not among them. No time field, equal times or a NaN time: no phases."""
+    from ros2_mos.io.bags import empty_cloud, point_field
+    from ros2_mos.io.pointcloud2 import decode_xyz_intensity, fill_from_records, sweep_phases
+
+    def cloud(times: list[float], dtype: str = "<u4", x: tuple[float, ...] = (1.0, 2.0, float("nan"), 4.0, 5.0)):
+        records = np.zeros(len(times), np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"),
+                                                 ("t", dtype)]))
+        records["x"], records["y"], records["t"] = x[: len(times)], 1.0, times
+        return fill_from_records(empty_cloud(0, "os_sensor"), records, field_factory=point_field)
+
+    msg = cloud([0, 25e6, 40e6, 50e6, 100e6])
+    _, _, valid = decode_xyz_intensity(msg)
+    assert valid.tolist() == [0, 1, 3, 4]
+    assert sweep_phases(msg, valid) == pytest.approx([-0.5, -0.25, 0.0, 0.5])
+    assert sweep_phases(cloud([7, 7, 7, 7, 7]), valid) is None
+    assert sweep_phases(cloud([0.0, 0.05, 0.06, float("nan"), 0.1], "<f4"), valid) is None
+    plain = fill_from_records(empty_cloud(0, "velodyne"), np.zeros(2, np.dtype([("x", "<f4"), ("y", "<f4"),
+                                                                                 ("z", "<f4")])),
+                              field_factory=point_field)
+    assert sweep_phases(plain, np.arange(2)) is None
+    points = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]], np.float32)  # the phases given win over the azimuth
+    assert deskew(points, np.array([0, 0, 0, 1.0, 0, 0]), np.array([0.5, -0.5])) == pytest.approx(
+        np.array([[0.5, 1.0, 0.0], [-0.5, -1.0, 0.0]]))
+    with pytest.raises(ConfigError, match="phase"):
+        deskew(points, np.zeros(6), np.array([0.0]))
+
+
+def test_a_bag_whose_clouds_carry_point_times_is_deskewed_by_them_under_auto(tmp_path) -> None:
+    """A bag of clouds with a ``time`` field (Velodyne's driver) says its sweeps are skewed, and each scan carries
+    its points' phases (the zero-range point left out as autolabel leaves it out); a bag of x, y, z, intensity says
+    nothing."""
+    from ros2_mos.io.bags import BagWriter, empty_cloud, point_field, write_scans_bag
+    from ros2_mos.io.pointcloud2 import fill_from_records
+    from ros2_mos.offline.autolabel import AutoLabeler
+    from ros2_mos.offline.drives import BagDrive
+
+    records = np.zeros(4, np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"),
+                                    ("time", "<f4")]))
+    records["x"], records["y"], records["time"] = [3.0, 0.0, 4.0, 5.0], [1.0, 0.0, 1.0, 1.0], [0.0, 0.02, 0.06, 0.1]
+    with BagWriter(tmp_path / "timed") as writer:
+        for stamp in (0, 100_000_000):
+            writer.write("/points", stamp, fill_from_records(empty_cloud(stamp, "velodyne"), records,
+                                                             field_factory=point_field))
+    timed = BagDrive(tmp_path / "timed")
+    assert timed.skewed is True
+    scan = next(iter(timed))
+    assert scan.kept.tolist() == [0, 2, 3] and scan.phase == pytest.approx([-0.5, 0.1, 0.5])
+    ones, dark = np.ones((3, 3), np.float32), np.zeros(3, np.float32)
+    write_scans_bag(tmp_path / "plain", [(0, ones, dark), (100_000_000, ones, dark)])
+    plain = BagDrive(tmp_path / "plain")
+    assert plain.skewed is None and next(iter(plain)).phase is None
+    assert AutoLabeler(SMALL).deskews(timed) and not AutoLabeler(SMALL).deskews(plain)

@@ -23,9 +23,10 @@ def autolabel(
     use_poses: bool = typer.Option(False, "--use-poses", help="The drive's poses.txt instead of KISS-ICP"),
     png: bool = typer.Option(False, "--png", help="Also write movers.png: a bird's-eye picture, movers by track"),
     deskew: str = typer.Option("auto", help="Deskew each scan first (its motion from the poses around it, each "
-                               "point at its azimuth's firing time; the sweep from behind, clockwise): on for sweeps "
-                               "no driver compensated (KITTI raw's), off for compensated ones (SemanticKITTI's); "
-                               "auto: where the drive's sweep.txt says skewed (the simulator writes it), else off"),
+                               "point at its firing time: a bag's per-point times, else its azimuth, the sweep from "
+                               "behind, clockwise): on for sweeps no driver compensated (KITTI raw's), off for "
+                               "compensated ones (SemanticKITTI's); auto: where a folder's sweep.txt says skewed (the "
+                               "simulator writes it) or a bag's clouds carry per-point times, else off"),
 ) -> None:
     """Label every scan of whole drives moving (251) / static (9) using past AND future scans (offline)."""
     import time

@@ -8,7 +8,8 @@ static pole or bollard that the sensor drives past is "seen through" by another 
 
 The sweep is KITTI's Velodyne convention (the simulator's too): it starts behind the sensor (azimuth +pi) and turns
 clockwise seen from above, through the left and the front (phase 0, the scan's pose) to the right and back
-(KISS-ICP's KITTI timestamps the same way). Without per-point times, a point's firing phase is its azimuth's
+(KISS-ICP's KITTI timestamps the same way). A cloud's own per-point times give each point's firing phase where it
+has them (:func:`~ros2_mos.io.pointcloud2.sweep_phases`, a bag's PointCloud2); without, its azimuth does
 (:func:`sweep_phase`); the sensor's motion over the sweep is the twist between the poses before and after
 (:func:`scan_motions`, constant velocity), and :func:`deskew` moves each point into the frame of the scan's pose.
 """
@@ -57,15 +58,21 @@ def scan_motions(poses: np.ndarray) -> np.ndarray:
     return out
 
 
-def deskew(points: np.ndarray, motion: np.ndarray) -> np.ndarray:
+def deskew(points: np.ndarray, motion: np.ndarray, phase: np.ndarray | None = None) -> np.ndarray:
     """The (N, 3) points of one skewed sweep moved into the frame of the scan's pose (float32, same order): a point
-    fired at phase s (:func:`sweep_phase`) was measured from the pose moved by s times ``motion`` (rotation vector,
-    translation: :func:`scan_motions`)."""
+    fired at phase s (``phase``, per point, from the cloud's own times; else :func:`sweep_phase` of its azimuth) was
+    measured from the pose moved by s times ``motion`` (rotation vector, translation: :func:`scan_motions`)."""
     motion = np.asarray(motion, np.float64)
     if motion.shape != (6,) or not np.all(np.isfinite(motion)):
         raise ConfigError(f"deskew: motion must be 6 finite numbers, got {motion!r}")
     xyz = np.asarray(points[:, :3], np.float64)
-    phase = sweep_phase(xyz)
+    if phase is None:
+        phase = sweep_phase(xyz)
+    else:
+        phase = np.asarray(phase, np.float64)
+        if phase.shape != (len(xyz),) or not np.all(np.isfinite(phase)):
+            raise ConfigError(f"deskew: phase must be one finite number per point ({len(xyz)}), got shape "
+                              f"{phase.shape}")
     omega, velocity = motion[:3], motion[3:]
     angle = float(np.linalg.norm(omega))
     out = xyz + phase[:, None] * velocity[None, :]

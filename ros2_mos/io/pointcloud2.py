@@ -43,6 +43,8 @@ _NUMPY_TO_DATATYPE: dict[np.dtype, int] = {v: k for k, v in DATATYPES.items()}
 
 #: Names under which drivers publish a per-point return strength, in order of preference.
 INTENSITY_NAMES: tuple[str, ...] = ("intensity", "reflectivity", "remission")
+#: Per-point measurement times, as drivers name them (Ouster ``t`` in ns, Velodyne ``time`` in s, Hesai ``timestamp``).
+TIME_NAMES: tuple[str, ...] = ("t", "time", "timestamp", "time_stamp", "offset_time")
 
 #: Upper bound on points per cloud; far above any rotating LiDAR (a 128-beam sensor
 #: gives ~260k) yet small enough that a corrupt header cannot make us allocate GBs.
@@ -296,6 +298,24 @@ def decode_xyz_intensity(
             intensity = column.astype(np.float32)  # always a copy: the message buffer stays untouched
         intensity[~np.isfinite(intensity)] = 0.0
     return points, intensity, valid_index
+
+
+def sweep_phases(msg: Any, valid_index: np.ndarray, time_names: Sequence[str] = TIME_NAMES) -> np.ndarray | None:
+    """Per point ``valid_index`` (indices into the cloud, as :func:`decode_xyz_intensity` returns them), its firing
+    time within the sweep from the cloud's own per-point time field (the first of ``time_names`` present, any unit):
+    -0.5 at the earliest, +0.5 at the latest, linearly between (float64). None where the cloud has no such field of
+    count 1, or its times there are not all finite or do not differ."""
+    view = msg if isinstance(msg, CloudView) else view_cloud(msg)
+    field = next((f for f in (_field(view, n) for n in time_names) if f is not None), None)
+    if field is None or field.count != 1 or len(valid_index) == 0:
+        return None
+    times = _scalar_column(view, field.name)[valid_index].astype(np.float64)
+    if not np.all(np.isfinite(times)):
+        return None
+    first, last = float(times.min()), float(times.max())
+    if not last > first:
+        return None
+    return (times - first) / (last - first) - 0.5
 
 
 # ----------------------------------------------------------------------------- encoding

@@ -149,13 +149,14 @@ class AutolabelConfig:
     #: its box stood still: the model calls a queue moving while it waits (0: off; the box rule only)
     instant_cue_reshape: float = 0.2
     #: Each scan deskewed before objects and visibility (:mod:`~ros2_mos.core.deskew`: its points moved into the
-    #: frame of the scan's pose by the motion between the poses around it, each at its azimuth's firing time):
-    #: 'on', 'off', or 'auto': where the drive says its sweeps are skewed (``sweep.txt``, :mod:`ros2_mos.io.sweep`;
-    #: the simulator writes it). Sweeps no driver compensated (KITTI raw's) disagree between scans far apart where
-    #: an object's bearing changed, and thin static posts the sensor passes are seen through (real r2: 49 of 103
-    #: movers); a sweep that is not skewed (SemanticKITTI's, the simulator's by default) is bent by it the other way
-    #: (one simulated drive 93.3 -> 10.3): so never on without the drive's or the user's word
-    #: (benchmarks/autolabel.md, round 39)
+    #: frame of the scan's pose by the motion between the poses around it, each at its firing time: from the cloud's
+    #: own per-point times where a bag's clouds have them, else from its azimuth): 'on', 'off', or 'auto': where the
+    #: drive says its sweeps are skewed (a folder's ``sweep.txt``, :mod:`ros2_mos.io.sweep`, which the simulator
+    #: writes; a bag whose clouds carry per-point times). Sweeps no driver compensated (KITTI raw's) disagree
+    #: between scans far apart where an object's bearing changed, and thin static posts the sensor passes are seen
+    #: through (real r2: 49 of 103 movers); a sweep that is not skewed (SemanticKITTI's, the simulator's by default)
+    #: is bent by it the other way (one simulated drive 93.3 -> 10.3): so never on without the drive's or the
+    #: user's word (benchmarks/autolabel.md, round 39)
     deskew: str = "auto"
 
     def __post_init__(self) -> None:
@@ -367,7 +368,7 @@ class AutoLabeler:
             for k in range(n):
                 while loaded < min(n, k + window + 1):  # the window ahead of scan k
                     scan = next(scans)
-                    cloud = scan.points if motions is None else deskew(scan.points, motions[scan.index])
+                    cloud = scan.points if motions is None else deskew(scan.points, motions[scan.index], scan.phase)
                     seen[scan.index] = SeenScan(cloud, poses[scan.index], self.sensor)
                     pending.append((scan.index, cloud, scan.intensity))
                     loaded += 1

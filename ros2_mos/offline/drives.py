@@ -24,6 +24,9 @@ class DriveScan:
     intensity: np.ndarray  # (N,) float32
     kept: np.ndarray  # (N,) their indices among the scan's points as stored (a label is due for each of those)
     stored: int  # how many points the scan has as stored
+    #: (N,) each point's firing time within the sweep, -0.5 to 0.5, from the cloud's own per-point times (a bag's);
+    #: None where the scan has none (its azimuth tells it: :func:`~ros2_mos.core.deskew.sweep_phase`)
+    phase: np.ndarray | None = None
 
 
 class Drive(Protocol):
@@ -79,13 +82,21 @@ class BagDrive:
 
     def __init__(self, path: str | Path, topic: str | None = None) -> None:
         from ros2_mos.io.bags import iter_pointclouds, pointcloud_topic
+        from ros2_mos.io.pointcloud2 import decode_xyz_intensity, sweep_phases
 
         self.path = Path(path)
         self.topic = pointcloud_topic(self.path, topic)  # raises when the bag has none
         self.name = self.path.name
         self.poses = None
-        self.skewed = None  # per-point time fields are not read yet
-        self.stamps = [stamp for stamp, _ in iter_pointclouds(self.path, self.topic)]
+        self.stamps = []
+        #: A driver that stamps each point with its own time (Ouster's ``t``, Velodyne's ``time``) publishes the
+        #: sweep as measured, skewed: the time field is there for whoever deskews it. None where it has none.
+        self.skewed: bool | None = None
+        for stamp, msg in iter_pointclouds(self.path, self.topic):
+            if not self.stamps:
+                _, _, valid = decode_xyz_intensity(msg)
+                self.skewed = True if sweep_phases(msg, valid) is not None else None
+            self.stamps.append(stamp)
         self.scan_names = [f"{i:06d}" for i in range(len(self.stamps))]
 
     def __len__(self) -> int:
@@ -93,12 +104,14 @@ class BagDrive:
 
     def __iter__(self) -> Iterator[DriveScan]:
         from ros2_mos.io.bags import iter_pointclouds
-        from ros2_mos.io.pointcloud2 import decode_xyz_intensity
+        from ros2_mos.io.pointcloud2 import decode_xyz_intensity, sweep_phases
 
         t0 = self.stamps[0] if self.stamps else 0
         for i, (stamp, msg) in enumerate(iter_pointclouds(self.path, self.topic)):
             points, intensity, valid = decode_xyz_intensity(msg)
             scan = _scan(i, (stamp - t0) * 1e-9, points, intensity)
+            phase = sweep_phases(msg, valid)
+            scan.phase = phase[scan.kept] if phase is not None else None
             # labels are due for every point of the message, in its order (decode drops the non-finite ones)
             scan.kept = valid[scan.kept]
             scan.stored = int(msg.width) * int(msg.height)
