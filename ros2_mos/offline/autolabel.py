@@ -6,7 +6,8 @@ The steps (:meth:`AutoLabeler.label`), each a stage built once:
    backwards too, and the pass that did not fall behind (the backward one where neither travelled clearly farther:
    :mod:`~ros2_mos.offline.trajectory`). The same pass finds
    the returns of the vehicle carrying the sensor (:class:`~ros2_mos.offline.objects.VehicleReturns`).
-2. **Objects and evidence**, in a window sliding over the drive: each scan's ground is removed and the rest cut into
+2. **Objects and evidence**, in a window sliding over the drive: each scan is deskewed where its sweeps are skewed
+   (``AutolabelConfig.deskew``, :mod:`~ros2_mos.core.deskew`), its ground removed and the rest cut into
    object-sized segments (:mod:`~ros2_mos.offline.objects`); each object's points are checked against the range
    images of scans before and after it (:mod:`~ros2_mos.offline.visibility`): where those scans saw through the
    place the object occupies now, it moved. Scans 5 or more apart are seen from their pose registered to the scan
