@@ -3,6 +3,7 @@ way (noisier upper beams), and its refusals."""
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from typer.testing import CliRunner  # noqa: E402
 
 from ros2_mos.cli import app  # noqa: E402
 from ros2_mos.core.config import MosConfig  # noqa: E402
-from ros2_mos.core.errors import DatasetError, ModelError  # noqa: E402
+from ros2_mos.core.errors import ConfigError, DatasetError, ModelError  # noqa: E402
 from ros2_mos.core.pipeline import MosPipeline  # noqa: E402
 from ros2_mos.io.labels import to_moving_classes  # noqa: E402
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence  # noqa: E402
@@ -108,6 +109,9 @@ def test_adapting_to_noisier_upper_beams_cuts_the_false_positives_there(base, tm
     with pytest.raises(DatasetError, match="n0 were made from another drive"):
         adapt(other, tmp_path / "other.onnx", plan, tmp_path / "work", show_progress=False)
     assert not (tmp_path / "other.onnx").exists()
+    deskewed = plan_adaptation(drives, model, SENSOR, dataclasses.replace(plan.config, deskew="on"), root=root)
+    with pytest.raises(DatasetError, match="by other autolabel rules"):  # labels made without deskewing
+        adapt(drives, tmp_path / "deskewed.onnx", deskewed, tmp_path / "work", show_progress=False)
 
 
 def test_adapt_refuses_too_few_scans_another_sensor_s_base_and_mixed_sensors(base, tmp_path):
@@ -127,6 +131,11 @@ def test_adapt_refuses_too_few_scans_another_sensor_s_base_and_mixed_sensors(bas
     result = runner.invoke(app, ["adapt", str(tmp_path / "sequences" / "few"), "--out", str(tmp_path / "x.onnx"),
                                  "--holdout", "nan"])
     assert result.exit_code != 0 and "--holdout" in result.output
+    result = runner.invoke(app, ["adapt", str(tmp_path / "sequences" / "few"), "--out", str(tmp_path / "x.onnx"),
+                                 "--deskew", "yes"])
+    assert result.exit_code != 0 and "unknown --deskew 'yes'" in result.output
+    with pytest.raises(ConfigError, match="deskew"):
+        AdaptConfig(deskew="sometimes")
 
 
 def test_simulated_drives_lie_on_narrow_streets_in_the_share_the_base_recipe_trained_on():

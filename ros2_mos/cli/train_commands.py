@@ -175,6 +175,9 @@ def adapt(
     topic: Optional[str] = typer.Option(None, help="PointCloud2 topic of bags (default: their only one)"),
     dry_run: bool = typer.Option(False, "--dry-run", help="Print the plan (scans, epochs, expected minutes); "
                                                           "do nothing"),
+    deskew: str = typer.Option("auto", help="autolabel's --deskew for the drives' labels: on for sweeps no driver "
+                               "compensated (KITTI raw's), off for compensated ones; auto: where a folder's sweep.txt "
+                               "says skewed or a bag's clouds carry per-point times"),
 ) -> None:
     """Fine-tune the online model on your own unlabelled drives, with labels made by `ros2-mos autolabel`."""
     import math
@@ -189,6 +192,10 @@ def adapt(
         fail(f"--holdout must be in (0, 0.9), got {holdout}")
     if not math.isfinite(max_minutes) or max_minutes <= 0:
         fail(f"--max-minutes must be a positive number, got {max_minutes}")
+    from ros2_mos.offline.autolabel import DESKEW
+
+    if deskew not in DESKEW:
+        fail(f"unknown --deskew {deskew!r}: use one of {', '.join(DESKEW)}")
     if out.suffix != ".onnx":
         fail(f"--out must end in .onnx, got {out.name}")
     check_output(out, "--out")
@@ -199,7 +206,7 @@ def adapt(
         base = model if model is not None else default_model_path(None)
         spec = lidar_of(MosModel(str(base)).metadata.sensor)  # the LiDAR's clouds, not the model's image
     opened = [open_drive(d, topic) for d in drives]
-    config = AdaptConfig(epochs=epochs, holdout=holdout, sim_drives=sim_drives, max_minutes=max_minutes)
+    config = AdaptConfig(epochs=epochs, holdout=holdout, sim_drives=sim_drives, max_minutes=max_minutes, deskew=deskew)
     plan = plan_adaptation(opened, Path(base), spec, config)
     typer.echo(plan.describe())
     if dry_run:

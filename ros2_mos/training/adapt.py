@@ -33,6 +33,7 @@ from ros2_mos.core.errors import ConfigError, DatasetError, ModelError
 from ros2_mos.io.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times
 
 if TYPE_CHECKING:
+    from ros2_mos.offline.autolabel import AutolabelConfig
     from ros2_mos.training.trainer import TrainConfig
 
 #: Fewer real scans than this are too few to adapt on.
@@ -60,8 +61,15 @@ class AdaptConfig:
     batch_size: int = 8
     crop_width: int = 256
     max_minutes: float = 50.0
+    #: autolabel's ``--deskew`` for the drives' labels: 'auto' (where a drive says its sweeps are skewed), 'on'
+    #: (sweeps no driver compensated: KITTI raw's), 'off' (``AutolabelConfig.deskew``)
+    deskew: str = "auto"
 
     def __post_init__(self) -> None:
+        from ros2_mos.offline.autolabel import DESKEW
+
+        if self.deskew not in DESKEW:
+            raise ConfigError(f"adapt: deskew must be one of {', '.join(DESKEW)}, got {self.deskew!r}")
         for name in ("epochs", "sim_drives", "sim_scans", "sim_holdout", "batch_size", "crop_width"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (
@@ -203,31 +211,34 @@ def _write_part(folder: Path, scan_paths: list[Path], labels: list[Path], poses:
 LABELS_MADE_FROM = "labels_made_from.json"
 
 
-def labels_made_from(drive) -> dict:
-    """What a drive's automatic labels depend on: the drive (where it is, how many scans), the autolabel rules and the
-    package version (the online cue's model ships with it). A resumed work folder must hold labels made from the
-    same."""
+def labels_made_from(drive, config: AutolabelConfig | None = None) -> dict:
+    """What a drive's automatic labels depend on: the drive (where it is, how many scans), the autolabel rules
+    (``config``, default ones where None) and the package version (the online cue's model ships with it). A resumed
+    work folder must hold labels made from the same."""
     from ros2_mos import __version__
     from ros2_mos.offline.autolabel import AutolabelConfig
 
     where = drive.sequence.root if hasattr(drive, "sequence") else drive.path
+    rules = config if config is not None else AutolabelConfig()
     made_from = {"drive": str(Path(where).resolve()), "scans": len(drive),
-                 "autolabel": dataclasses.asdict(AutolabelConfig()), "ros2_mos": __version__}
+                 "autolabel": dataclasses.asdict(rules), "ros2_mos": __version__}
     return json.loads(json.dumps(made_from))  # tuples as lists, as they read back
 
 
 def prepare_real(drive, sensor: SensorConfig, work: Path, plan: DrivePlan,
-                 progress: Callable[[str, int], None]) -> tuple[str, str]:
-    """Autolabel a drive (cached) and split it into a train and a holdout sequence under ``work/data``."""
+                 progress: Callable[[str, int], None], deskew: str = "auto") -> tuple[str, str]:
+    """Autolabel a drive (cached; ``deskew``: :class:`AdaptConfig`'s) and split it into a train and a holdout
+    sequence under ``work/data``."""
     from ros2_mos.io.semantic_kitti import read_poses
-    from ros2_mos.offline.autolabel import autolabel_drive
+    from ros2_mos.offline.autolabel import AutolabelConfig, autolabel_drive
 
     labels_root = work / "autolabel"
     labelled = labels_root / "sequences" / drive.name
-    made_from = labels_made_from(drive)
+    rules = AutolabelConfig(deskew=deskew)
+    made_from = labels_made_from(drive, rules)
     stamp = labelled / LABELS_MADE_FROM
     if not (labelled / "poses.txt").is_file():
-        autolabel_drive(drive, labels_root, sensor, "instant", progress=progress)
+        autolabel_drive(drive, labels_root, sensor, "instant", rules, progress=progress)
         stamp.write_text(json.dumps(made_from, indent=1) + "\n")
     elif not stamp.is_file() or json.loads(stamp.read_text()) != made_from:
         raise DatasetError(f"{work}: its labels for {drive.name} were made from another drive or by other autolabel "
@@ -312,7 +323,7 @@ def adapt(drives: list, out: Path, plan: AdaptPlan, work: Path,
         _check_sensor(drive, plan.sensor)
     train, holdout = [], []
     for drive, drive_plan in zip(drives, plan.drives):
-        a, b = prepare_real(drive, plan.sensor, work, drive_plan, progress)
+        a, b = prepare_real(drive, plan.sensor, work, drive_plan, progress, cfg.deskew)
         train.append(a)
         holdout.append(b)
     recipe = TrainConfig.from_yaml(plan.base_config)
