@@ -41,6 +41,13 @@ def test_the_motion_of_a_scan_is_the_mean_step_between_the_poses_around_it() -> 
     assert turning[0] == pytest.approx([0, 0, 0.1, 0, 0, 0])
     assert rotation_log(pose(0.0, 0.0, -0.3)[:3, :3]) == pytest.approx([0, 0, -0.3])
     assert scan_motions(np.eye(4)[None]) == pytest.approx(np.zeros((1, 6)))
+    # a scan dropped between the 2nd and the 3rd (0.2 s): that step is one sweep's motion again (2 m in 0.2 s: 1 m)
+    timed = scan_motions(np.stack([pose(0.0, 0.0, 0.0), pose(1.0, 0.0, 0.0), pose(3.0, 0.0, 0.0), pose(4.0, 0, 0)]),
+                         np.array([0.0, 0.1, 0.3, 0.4]))
+    assert timed == pytest.approx(np.tile([0, 0, 0, 1.0, 0, 0], (4, 1)))
+    for bad in (np.array([0.0, 0.1, 0.1]), np.array([0.0, 0.1]), np.array([0.0, np.nan, 0.2])):
+        with pytest.raises(ConfigError, match="stamps"):
+            scan_motions(poses, bad)
     with pytest.raises(ConfigError, match="poses"):
         scan_motions(np.eye(4))
 

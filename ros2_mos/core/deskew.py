@@ -1,10 +1,11 @@
 """Motion compensation of a rotating LiDAR's sweep (deskewing) from the poses of the scans around it.
 
 A spinning sensor fires its columns one after another over one scan period while the vehicle moves, so each point
-is measured from the pose of its own firing time: a real scan is *skewed* (KITTI's and most drivers' clouds are;
-the simulator's are with ``--intra-sweep-motion``). At 6 m/s the points behind the sensor, fired first and last, lie
-0.3 m off either way. Scans compared from far apart then disagree where an object's bearing changed, and a thin
-static pole or bollard that the sensor drives past is "seen through" by another scan.
+is measured from the pose of its own firing time: a real scan is *skewed* (KITTI raw's and most drivers' clouds are;
+SemanticKITTI's look compensated already; the simulator's are skewed with ``--intra-sweep-motion``). At 6 m/s the
+points behind the sensor, fired first and last, lie 0.3 m off either way. Scans compared from far apart then
+disagree where an object's bearing changed, and a thin static pole or bollard that the sensor drives past is "seen
+through" by another scan.
 
 The sweep is KITTI's Velodyne convention (the simulator's too): it starts behind the sensor (azimuth +pi) and turns
 clockwise seen from above, through the left and the front (phase 0, the scan's pose) to the right and back
@@ -37,10 +38,11 @@ def rotation_log(rotation: np.ndarray) -> np.ndarray:
     return skew * (angle / (2.0 * np.sin(angle)))
 
 
-def scan_motions(poses: np.ndarray) -> np.ndarray:
-    """Per scan of (N, 4, 4) world poses, the sensor's motion over one scan period in the scan's own frame: (N, 6),
-    rotation vector then translation. The mean of the steps from the scan before and to the scan after (one of them
-    at either end of the drive); zeros for a single scan."""
+def scan_motions(poses: np.ndarray, stamps: np.ndarray | None = None) -> np.ndarray:
+    """Per scan of (N, 4, 4) world poses, the sensor's motion over one sweep in the scan's own frame: (N, 6), rotation
+    vector then translation. The mean of the steps from the scan before and to the scan after (one of them at either
+    end of the drive); zeros for a single scan. With the scans' ``stamps`` (s), each step is scaled to the drive's
+    median time between scans (one sweep): a scan dropped between two does not double their motion."""
     poses = np.asarray(poses, np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
         raise ConfigError(f"scan_motions: poses must be (N, 4, 4), got {poses.shape}")
@@ -50,6 +52,11 @@ def scan_motions(poses: np.ndarray) -> np.ndarray:
         relative = np.linalg.inv(poses[k]) @ poses[k + 1]
         steps[k, :3] = rotation_log(relative[:3, :3])
         steps[k, 3:] = relative[:3, 3]
+    if stamps is not None and n > 1:
+        gaps = np.diff(np.asarray(stamps, np.float64))
+        if gaps.shape != (n - 1,) or not np.all(np.isfinite(gaps)) or not np.all(gaps > 0):
+            raise ConfigError("scan_motions: stamps must be one finite, increasing time per pose")
+        steps *= (np.median(gaps) / gaps)[:, None]
     out = np.zeros((n, 6))
     if n < 2:
         return out

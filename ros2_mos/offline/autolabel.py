@@ -261,7 +261,9 @@ class AutoLabeler:
         vehicle = VehicleReturns(self.config.objects)
         poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
         tracker = Tracker(self.config.tracks)
-        motions = scan_motions(poses) if self.deskews(drive) else None
+        motions = None
+        if self.deskews(drive):  # a bag's stamps that do not increase: each step taken as one sweep
+            motions = scan_motions(poses, stamps if np.all(np.diff(stamps) > 0) else None)
         cue_skipped, blind = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir,
                                                         progress, motions)
         tracker.cut_jumps()
