@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ros2_mos.core.config import MosConfig, sensor_preset
+from ros2_mos.core.errors import DatasetError
 from ros2_mos.core.inference import default_model_path
 from ros2_mos.core.pipeline import MosPipeline
 from ros2_mos.io.conventions import CONVENTIONS, label_dirs
@@ -78,8 +79,6 @@ UNSEEN7_SEEDS = {"traffic_jam": (10301, 10302, 10303, 10304), "narrow_street": (
 #: Round 32's check of rounds 31-32 (first scored when round 32's rule was chosen on the other sets).
 UNSEEN8_SEEDS = {"traffic_jam": (10401, 10402, 10403, 10404), "narrow_street": (10411, 10412, 10413),
                  "benchmark": (10421, 10422), "easy": (10431, 10432)}
-#: In a --data root of drives simulated with skewed sweeps (--intra-sweep-motion): mixing them with others is refused.
-SKEWED_MARKER = "SKEWED_SWEEPS"
 SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_SEEDS, "unseen": UNSEEN_SEEDS,
              "unseen2": UNSEEN2_SEEDS, "unseen3": UNSEEN3_SEEDS, "unseen4": UNSEEN4_SEEDS, "unseen5": UNSEEN5_SEEDS,
              "unseen6": UNSEEN6_SEEDS, "unseen7": UNSEEN7_SEEDS, "unseen8": UNSEEN8_SEEDS}
@@ -156,13 +155,6 @@ def main() -> None:
                                            for part, values in nested.items() if values})
     changes.update({f"{part}.{k}": v for part, values in nested.items() for k, v in values.items()})
     seeds = SEED_SETS[args.seeds]
-    marker = args.data / SKEWED_MARKER
-    if (args.data / "sequences").is_dir() and marker.is_file() != args.intra_sweep_motion:
-        parser.error(f"{args.data} holds drives {'with' if marker.is_file() else 'without'} skewed sweeps; "
-                     f"{'give' if marker.is_file() else 'leave out'} --intra-sweep-motion or choose another --data")
-    if args.intra_sweep_motion:
-        args.data.mkdir(parents=True, exist_ok=True)
-        marker.write_text("drives simulated with --intra-sweep-motion\n")
     print(f"autolabel benchmark, {time.strftime('%Y-%m-%d')}: {args.seeds} drives, {args.scans} scans, "
           f"KISS-ICP poses, settings {changes or 'default'}{', skewed sweeps' if args.intra_sweep_motion else ''}\n")
     cols = ["auto semantickitti", "online semantickitti", "auto instant", "online instant", "precision", "recall",
@@ -172,7 +164,11 @@ def main() -> None:
     for sensor in args.sensors:
         root = args.data if sensor == "hdl64" else args.data / sensor
         rows = []
-        for _, name, folder in ensure_sim_sequences(root, args.scans, seeds, print, sensor, args.intra_sweep_motion):
+        try:
+            drives = ensure_sim_sequences(root, args.scans, seeds, print, sensor, args.intra_sweep_motion)
+        except DatasetError as error:  # a skewed drive among others, or the other way round
+            parser.error(str(error))
+        for _, name, folder in drives:
             rows.append(score_drive(folder, sensor, not args.no_online, config))
             print(f"| {sensor} | {name} | " + " | ".join(cells(rows[-1], cols)) + " |", flush=True)
         mean = {c: float(np.mean([r[c] for r in rows])) for c in rows[0]}

@@ -206,3 +206,21 @@ def test_calibrate_reports_the_iou_at_the_models_own_threshold_and_the_best(labe
         score.update(out.labels, to_moving_classes(frame.labels))
     assert own_iou == pytest.approx(100 * score.iou, abs=0.051)
     assert best_iou > own_iou and best != own  # this model's best threshold is not its own
+
+
+def test_simulated_suite_drives_are_not_mixed_with_skewed_ones(tmp_path):
+    """A root of drives simulated without intra-sweep motion (their sweep.txt says compensated) is refused for skewed
+    ones, and the other way round; each is reused as it is."""
+    from ros2_mos.core.errors import DatasetError
+    from ros2_mos.scoring.suite import ensure_sim_sequences
+
+    seeds = {"easy": (3,)}
+    plain = ensure_sim_sequences(tmp_path / "plain", 3, seeds, sensor="vlp16")
+    assert (plain[0][2] / "sweep.txt").read_text().strip() == "compensated"
+    assert ensure_sim_sequences(tmp_path / "plain", 3, seeds, sensor="vlp16") == plain
+    with pytest.raises(DatasetError, match="simulated without intra-sweep motion"):
+        ensure_sim_sequences(tmp_path / "plain", 3, seeds, sensor="vlp16", skewed=True)
+    skewed = ensure_sim_sequences(tmp_path / "skewed", 3, seeds, sensor="vlp16", skewed=True)
+    assert (skewed[0][2] / "sweep.txt").read_text().strip() == "skewed"
+    with pytest.raises(DatasetError, match="simulated with intra-sweep motion"):
+        ensure_sim_sequences(tmp_path / "skewed", 3, seeds, sensor="vlp16")

@@ -287,7 +287,7 @@ class AutoLabeler:
         """Whether ``drive``'s scans are deskewed (``AutolabelConfig.deskew``; 'auto': where the drive says its
         sweeps are skewed)."""
         mode = self.config.deskew
-        return mode == "on" or (mode == "auto" and getattr(drive, "skewed", None) is True)
+        return mode == "on" or (mode == "auto" and drive.skewed is True)
 
     def _poses(self, drive: Drive, vehicle: VehicleReturns, workdir: Path,
                progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int], str]:

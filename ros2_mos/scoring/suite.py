@@ -40,6 +40,7 @@ from ros2_mos.core.residuals import residual_images
 from ros2_mos.io.conventions import CONVENTIONS, label_dirs
 from ros2_mos.io.labels import to_moving_classes
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label
+from ros2_mos.io.sweep import read_sweep_file
 from ros2_mos.scoring.baselines import (
     RegionGrowingParams,
     region_growing,
@@ -149,8 +150,8 @@ def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...
                          log: Callable[[str], None] = lambda s: None,
                          sensor: str = "hdl64", skewed: bool = False) -> list[tuple[str, str, Path]]:
     """(preset, row name, sequence folder) of the suite's simulated sequences, simulating missing ones (``skewed``:
-    each column cast from the pose of its firing time, ``--intra-sweep-motion``; keep such drives in a root of their
-    own)."""
+    each column cast from the pose of its firing time, ``--intra-sweep-motion``). A folder there already whose
+    ``sweep.txt`` says otherwise (none: not skewed) is refused: keep skewed drives in a root of their own."""
     from ros2_mos.sim import sim_preset, simulate_sequence, with_effects
 
     out = []
@@ -164,6 +165,9 @@ def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...
                 sim = sim_preset(preset)
                 simulate_sequence(root, name, scans, with_effects(sim, intra_sweep_motion=True) if skewed else sim,
                                   seed, sensor)
+            elif bool(read_sweep_file(folder)) != skewed:
+                raise DatasetError(f"{folder} was simulated {'with' if not skewed else 'without'} intra-sweep motion; "
+                                   f"keep skewed and other drives in roots of their own")
             out.append((preset, name, folder))
     return out
 
