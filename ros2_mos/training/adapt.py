@@ -66,10 +66,9 @@ class AdaptConfig:
     deskew: str = "auto"
 
     def __post_init__(self) -> None:
-        from ros2_mos.offline.autolabel import DESKEW
+        from ros2_mos.offline.autolabel import AutolabelConfig
 
-        if self.deskew not in DESKEW:
-            raise ConfigError(f"adapt: deskew must be one of {', '.join(DESKEW)}, got {self.deskew!r}")
+        AutolabelConfig(deskew=self.deskew)  # raises ConfigError for a mode autolabel does not know
         for name in ("epochs", "sim_drives", "sim_scans", "sim_holdout", "batch_size", "crop_width"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (
