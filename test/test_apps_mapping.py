@@ -209,3 +209,92 @@ def test_bev_png_shows_raw_and_cleaned_side_by_side_with_red_ghosts(tmp_path, st
     half = image.shape[1] // 2
     red = np.all(image == [230, 40, 40], axis=2)
     assert red[:, :half].sum() > 10 and red[:, half:].sum() == 0
+
+
+# ------------------------------------------------------------------ deskewed maps
+
+
+def _two_scan_drive(tmp_path, sweep: str | None):
+    """Two scans of three points, the sensor 1 m further along x in the second (poses.txt, 0.1 s apart)."""
+    from ros2_mos.io.semantic_kitti import write_poses, write_scan, write_times
+    from ros2_mos.io.sweep import write_sweep_file
+
+    root = tmp_path / "drive"
+    points = np.array([[0.0, 5.0, 0.0], [5.0, 0.0, 0.0], [0.0, -5.0, 0.0]], np.float32)  # left, ahead, right
+    for k in range(2):
+        write_scan(root / "velodyne" / f"{k:06d}.bin", points, np.zeros(3, np.float32))
+    poses = np.tile(np.eye(4), (2, 1, 1))
+    poses[1, 0, 3] = 1.0
+    write_poses(root / "poses.txt", poses, tr=None)  # no calib.txt: the folder holds LiDAR poses
+    write_times(root / "times.txt", np.array([0.0, 0.1]))
+    if sweep is not None:
+        write_sweep_file(root, skewed=sweep == "skewed")
+    return SemanticKittiSequence(root), points
+
+
+def _labels_beside(tmp_path, seq, sweep: str | None):
+    """An autolabel-like labels root for ``seq``: nothing moving, its poses, and its own sweep.txt."""
+    from ros2_mos.io.labels import to_submission
+    from ros2_mos.io.semantic_kitti import write_label, write_poses
+    from ros2_mos.io.sweep import write_sweep_file
+
+    folder = tmp_path / "labels" / "sequences" / seq.name
+    for f in seq.scan_files:
+        write_label(folder / "predictions" / f"{f.stem}.label", to_submission(np.zeros(3, bool)))
+    write_poses(folder / "poses.txt", seq.require_poses())
+    if sweep is not None:
+        write_sweep_file(folder, skewed=sweep == "skewed")
+    return tmp_path / "labels"
+
+
+def test_a_deskewed_map_holds_each_point_where_its_firing_pose_saw_it(tmp_path):
+    """The sensor moves 1 m per sweep along x; the sweep starts behind and turns clockwise, so the point on the left
+    was fired a quarter sweep before the scan's pose (0.25 m further back), the one ahead at it, the one on the right a
+    quarter after (0.25 m on). Deskewed, scan 0's points lie at x -0.25, 0, +0.25 and scan 1's 1 m on from them."""
+    from ros2_mos.apps.mapping import build_maps_from_labels
+
+    seq, points = _two_scan_drive(tmp_path, None)
+    labels = _labels_beside(tmp_path, seq, "skewed")  # autolabel deskewed: 'auto' follows it
+    result = build_maps_from_labels(seq, labels, MappingConfig(voxel_size=0.01, min_range=1.0))
+    assert result.deskewed
+    expected = np.array([[-0.25, 5, 0], [0, 0, 0], [0.25, -5, 0]]) + [[0, 0, 0], [5, 0, 0], [0, 0, 0]]
+    expected = np.vstack([expected, expected + [1.0, 0, 0]])
+    got = result.raw.points[np.lexsort(result.raw.points.T[::-1])]
+    np.testing.assert_allclose(got, expected[np.lexsort(expected.T[::-1])], atol=1e-5)
+    raw = build_maps_from_labels(seq, labels, MappingConfig(voxel_size=0.01, min_range=1.0, deskew="off"))
+    assert not raw.deskewed
+    np.testing.assert_allclose(np.sort(raw.raw.points[:, 0]), np.sort(np.r_[points[:, 0], points[:, 0] + 1]),
+                               atol=1e-6)
+
+
+@pytest.mark.parametrize("labels_say, sequence_says, mode, deskewed", [
+    ("skewed", "compensated", "auto", True),  # autolabel's word beats the folder's
+    ("compensated", "skewed", "auto", False),
+    (None, "skewed", "auto", True),  # labels that say nothing (infer's): the folder's word
+    (None, None, "auto", False),  # nobody says: as they are
+    ("compensated", None, "on", True),
+    ("skewed", "skewed", "off", False),
+])
+def test_map_deskew_auto_follows_the_labels_then_the_sequence(tmp_path, labels_say, sequence_says, mode, deskewed):
+    from ros2_mos.apps.mapping import build_maps_from_labels
+
+    seq, _ = _two_scan_drive(tmp_path, sequence_says)
+    labels = _labels_beside(tmp_path, seq, labels_say)
+    assert build_maps_from_labels(seq, labels, MappingConfig(deskew=mode)).deskewed is deskewed
+
+
+def test_the_online_map_deskews_with_the_pipeline_s_poses(street, tiny_model_path):
+    """Deskewing moves the same scans' points (the street's poses move the sensor), and changes nothing else: the
+    same poses, the same share labelled moving."""
+    config = MosConfig(model=str(tiny_model_path), postprocess=PostprocessConfig(min_region_pixels=0))
+    plain = build_maps(street, config, MappingConfig(voxel_size=0.2, poses="gt", deskew="off"))
+    bent = build_maps(street, config, MappingConfig(voxel_size=0.2, poses="gt", deskew="on"))
+    assert bent.deskewed and not plain.deskewed
+    np.testing.assert_allclose(bent.poses, plain.poses)
+    assert bent.moving_share == pytest.approx(plain.moving_share)
+    assert not np.array_equal(np.sort(bent.raw.points, axis=0), np.sort(plain.raw.points, axis=0))
+
+
+def test_an_unknown_map_deskew_mode_is_refused():
+    with pytest.raises(ConfigError, match="mapping: deskew must be one of auto, on, off, got 'yes'"):
+        MappingConfig(deskew="yes")

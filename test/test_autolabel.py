@@ -1407,6 +1407,13 @@ def test_deskewing_a_skewed_drive_drops_the_static_points_it_calls_moving(tmp_pa
         false_moving[mode] = int(next(line.split()[3] for line in result.output.splitlines()
                                       if line.startswith("       all")))
     assert false_moving["auto"] < 0.5 * false_moving["off"], false_moving
+    # The labels say how they took the sweeps, and `map --labels` builds its maps from the scans deskewed alike.
+    for mode, word in (("auto", "skewed"), ("off", "compensated")):
+        assert (tmp_path / mode / "sequences" / "00" / "sweep.txt").read_text().strip() == word
+        result = runner.invoke(app, ["map", str(tmp_path / "sim" / "sequences" / "00"), "--out",
+                                     str(tmp_path / f"map_{mode}.ply"), "--labels", str(tmp_path / mode)])
+        assert result.exit_code == 0, result.output
+        assert ("40 scans, deskewed" in result.output) == (mode == "auto"), result.output
     # The same drive as a bag whose clouds carry each point's time in ns (an Ouster driver's ``t``; here the firing
     # times the simulator cast the columns at): 'auto' deskews it by those times, to the same labels within a few
     # points.

@@ -20,11 +20,13 @@ import numpy as np
 
 from ros2_mos.core.atomic import atomic_path, write_bytes_atomically
 from ros2_mos.core.config import MosConfig
+from ros2_mos.core.deskew import check_deskew_mode, deskew, scan_motions
 from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.projection import finite_mask
 from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
 from ros2_mos.io.semantic_kitti import KITTI_TR, Frame, SemanticKittiSequence
+from ros2_mos.io.sweep import read_sweep_file
 
 # Per-point tags a map keeps (ground truth of the scan point a map point came from).
 TAG_STATIC = 0
@@ -214,8 +216,13 @@ class MappingConfig:
     min_range: float = 2.5
     max_range: float = 50.0
     poses: str = "estimated"  # 'estimated' (the MOS pipeline's KISS-ICP) or 'gt' (the dataset's poses)
+    #: Each scan deskewed into the frame of its pose before it enters both maps (:mod:`~ros2_mos.core.deskew`, the
+    #: motion from the poses the maps are built with): 'on', 'off', or 'auto': where the labels' folder says how
+    #: autolabel took the sweeps (its ``sweep.txt``), else where the sequence's ``sweep.txt`` says skewed
+    deskew: str = "auto"
 
     def __post_init__(self) -> None:
+        check_deskew_mode(self.deskew, "mapping")
         if not 0.0 <= self.min_range < self.max_range:
             raise ConfigError(f"mapping: need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
         if self.poses not in ("estimated", "gt"):
@@ -265,6 +272,7 @@ class MappingResult:
     builder: MapBuilder
     poses: np.ndarray  # (N, 4, 4) the LiDAR poses the maps were built with
     moving_share: float  # share of valid points MOS labelled moving
+    deskewed: bool = False  # the scans were deskewed before they entered the maps (``MappingConfig.deskew``)
 
     @property
     def raw(self) -> VoxelMap:
@@ -286,6 +294,7 @@ def build_maps(
 
     With ``mapping.poses='estimated'`` the poses are the pipeline's own KISS-ICP with
     ``map_update='static'`` (what the node does online); with ``'gt'`` the dataset's poses.
+    The maps are filled once every pose is known (a scan is deskewed with the poses before and after it).
     """
     from ros2_mos.core.pipeline import MosPipeline
 
@@ -294,18 +303,18 @@ def build_maps(
     cfg = dataclasses.replace(config, odometry=dataclasses.replace(config.odometry, map_update="static"))
     pipeline = MosPipeline(cfg, model)
     pipeline.reset()
-    builder = MapBuilder(mapping)
-    poses, moving = [], []
+    poses, moving, shares = [], [], []
     for frame in progress(sequence):
         pose = frame.pose if mapping.poses == "gt" else None
         res = pipeline.process(frame.points, frame.remission, frame.timestamp, pose=pose)
-        builder.add(
-            frame.points, res.pose, res.labels.astype(bool), gt_tags(frame.labels, len(frame.points)), frame.timestamp
-        )
         poses.append(res.pose)
+        moving.append(np.packbits(res.labels.astype(bool)))  # a bit per point: bounded for a long drive
         n_valid = int(res.valid.sum())
-        moving.append(float(res.labels.sum()) / n_valid if n_valid else 0.0)
-    return MappingResult(builder, np.array(poses), float(np.mean(moving)))
+        shares.append(float(res.labels.sum()) / n_valid if n_valid else 0.0)
+    deskewed = _deskews(mapping, sequence)
+    builder = fill_maps(sequence, np.array(poses), lambda k, n: np.unpackbits(moving[k], count=n).astype(bool),
+                         mapping, deskewed)
+    return MappingResult(builder, np.array(poses), float(np.mean(shares)), deskewed)
 
 
 def build_maps_from_labels(
@@ -317,6 +326,7 @@ def build_maps_from_labels(
     """The raw and the cleaned map from labels written beforehand (``ros2-mos autolabel`` or ``infer``):
     ``LABELS_ROOT/sequences/<name>/predictions/*.label`` (every id 251-259 moving), with the poses written beside
     them (``poses.txt``, autolabel's KISS-ICP over the whole drive) or, with ``mapping.poses='gt'``, the dataset's.
+    With ``mapping.deskew='auto'`` the scans are deskewed where autolabel deskewed them (its ``sweep.txt``).
     """
     from ros2_mos.io.semantic_kitti import read_label, read_poses
 
@@ -332,15 +342,52 @@ def build_maps_from_labels(
         poses = read_poses(folder / "poses.txt", KITTI_TR)
         if len(poses) < len(sequence):
             raise DatasetError(f"{folder / 'poses.txt'}: {len(poses)} poses for {len(sequence)} scans")
+    poses = np.asarray(poses[: len(sequence)])
+    label_files = [predictions / (f.stem + ".label") for f in sequence.scan_files]
+    deskewed = _deskews(mapping, sequence, folder)
+    shares: list[float] = []
+
+    def moving(k: int, n: int) -> np.ndarray:
+        mask = to_moving_classes(read_label(label_files[k], n)) == MOVING
+        shares.append(float(mask.mean()) if n else 0.0)
+        return mask
+
+    builder = fill_maps(sequence, poses, moving, mapping, deskewed, progress)
+    return MappingResult(builder, poses, float(np.mean(shares)), deskewed)
+
+
+def _deskews(mapping: MappingConfig, sequence: SemanticKittiSequence, labels_folder: Path | None = None) -> bool:
+    """Whether the maps deskew ``sequence``'s scans (``MappingConfig.deskew``; 'auto': the labels' folder's
+    ``sweep.txt`` where it has one, else the sequence's)."""
+    if mapping.deskew != "auto":
+        return mapping.deskew == "on"
+    said = read_sweep_file(labels_folder) if labels_folder is not None else None
+    if said is None:
+        said = read_sweep_file(sequence.root)
+    return said is True
+
+
+def fill_maps(
+    sequence: SemanticKittiSequence,
+    poses: np.ndarray,
+    moving: Callable[[int, int], np.ndarray],
+    mapping: MappingConfig,
+    deskewed: bool,
+    progress: Callable[[Iterable[Frame]], Iterable[Frame]] = lambda frames: frames,
+) -> MapBuilder:
+    """Both maps from every scan of ``sequence`` at ``poses``; ``moving(k, n)``: scan k's n points' mask of the
+    points the cleaned map leaves out. Deskewed scans keep their points' order, so the mask still fits."""
+    motions = None
+    if deskewed:
+        stamps = np.asarray(sequence.times[: len(sequence)], np.float64)
+        motions = scan_motions(poses, stamps if np.all(np.diff(stamps) > 0) else None)
     builder = MapBuilder(mapping)
-    moving_share = []
     for frame in progress(sequence):
-        name = sequence.scan_files[frame.index].stem + ".label"
-        moving = to_moving_classes(read_label(predictions / name, len(frame.points))) == MOVING
-        builder.add(frame.points, poses[frame.index], moving, gt_tags(frame.labels, len(frame.points)),
+        k = frame.index
+        points = frame.points if motions is None else deskew(frame.points, motions[k])
+        builder.add(points, poses[k], moving(k, len(frame.points)), gt_tags(frame.labels, len(frame.points)),
                     frame.timestamp)
-        moving_share.append(float(moving.mean()) if len(moving) else 0.0)
-    return MappingResult(builder, np.asarray(poses[: len(sequence)]), float(np.mean(moving_share)))
+    return builder
 
 
 # ---------------------------------------------------------------- files

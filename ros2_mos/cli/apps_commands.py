@@ -107,6 +107,9 @@ def map_command(
     labels: Optional[Path] = typer.Option(None, "--labels", help="Clean with labels written before instead of the "
                                           "online model: the --out root of `ros2-mos autolabel` (or `infer`); "
                                           "estimated poses are then the poses.txt written beside them"),
+    deskew: str = typer.Option("auto", help="Deskew each scan before it enters the maps (its motion from the poses "
+                               "before and after it): on, off, or auto: as autolabel took the sweeps (the sweep.txt "
+                               "beside --labels), else where the sequence's sweep.txt says skewed"),
 ) -> None:
     """Accumulate the scans into a raw and a MOS-cleaned voxel map; ghost share on labelled data."""
     from tqdm import tqdm
@@ -130,7 +133,7 @@ def map_command(
     if png is not None:
         check_output(png, "--png")
     seq = SemanticKittiSequence(sequence_dir)
-    mapping = MappingConfig(voxel_size=voxel_size, max_range=max_range, poses=poses)
+    mapping = MappingConfig(voxel_size=voxel_size, max_range=max_range, poses=poses, deskew=deskew)
     bar = lambda it: tqdm(it, total=len(seq), desc=f"map {seq.name}")  # noqa: E731
     if labels is not None:
         result = build_maps_from_labels(seq, labels, mapping, progress=bar)
@@ -139,7 +142,8 @@ def map_command(
     raw_path, clean_path = map_paths(out)
     write_map(raw_path, result.raw.points)
     write_map(clean_path, result.cleaned.points)
-    typer.echo(f"{seq.name}: {len(seq)} scans, {100 * result.moving_share:.1f} % of points labelled moving")
+    typer.echo(f"{seq.name}: {len(seq)} scans{', deskewed' if result.deskewed else ''}, "
+               f"{100 * result.moving_share:.1f} % of points labelled moving")
     typer.echo(f"{'map':>8} {'points':>10} {'ghost %':>8}  file")
     for name, vm, path in (("raw", result.raw, raw_path), ("cleaned", result.cleaned, clean_path)):
         typer.echo(f"{name:>8} {len(vm):>10} {_fmt(100 * ghost_share(vm), 3) if seq.has_labels else '-':>8}  {path}")

@@ -34,15 +34,16 @@ def autolabel(
     from tqdm import tqdm
 
     from ros2_mos.core.config import sensor_preset
+    from ros2_mos.core.deskew import DESKEW_MODES
     from ros2_mos.core.sensor_check import closest_preset, cloud_shape
     from ros2_mos.io.conventions import CONVENTIONS
-    from ros2_mos.offline.autolabel import DESKEW, AutolabelConfig, autolabel_drive, progress_steps
+    from ros2_mos.offline.autolabel import AutolabelConfig, autolabel_drive, progress_steps
     from ros2_mos.offline.drives import open_drive
 
     if convention not in CONVENTIONS:
         fail(f"unknown --convention {convention!r}: use one of {', '.join(CONVENTIONS)}")
-    if deskew not in DESKEW:
-        fail(f"unknown --deskew {deskew!r}: use one of {', '.join(DESKEW)}")
+    if deskew not in DESKEW_MODES:
+        fail(f"unknown --deskew {deskew!r}: use one of {', '.join(DESKEW_MODES)}")
     check_output(out, "--out", folder=True)
     opened = [open_drive(d, topic) for d in drives]
     names = [d.name for d in opened]

@@ -192,10 +192,10 @@ def adapt(
         fail(f"--holdout must be in (0, 0.9), got {holdout}")
     if not math.isfinite(max_minutes) or max_minutes <= 0:
         fail(f"--max-minutes must be a positive number, got {max_minutes}")
-    from ros2_mos.offline.autolabel import DESKEW
+    from ros2_mos.core.deskew import DESKEW_MODES
 
-    if deskew not in DESKEW:
-        fail(f"unknown --deskew {deskew!r}: use one of {', '.join(DESKEW)}")
+    if deskew not in DESKEW_MODES:
+        fail(f"unknown --deskew {deskew!r}: use one of {', '.join(DESKEW_MODES)}")
     if out.suffix != ".onnx":
         fail(f"--out must end in .onnx, got {out.name}")
     check_output(out, "--out")

@@ -21,6 +21,17 @@ import numpy as np
 
 from ros2_mos.core.errors import ConfigError
 
+#: How a consumer of a drive treats its sweeps: 'on' deskews, 'off' takes them as they are, 'auto' deskews where the
+#: drive says they are skewed (a folder's ``sweep.txt``, a bag's per-point times).
+DESKEW_MODES = ("auto", "on", "off")
+
+
+def check_deskew_mode(mode: str, where: str) -> str:
+    """``mode`` if it is one of :data:`DESKEW_MODES`; else a one-line :class:`ConfigError` naming ``where``."""
+    if mode not in DESKEW_MODES:
+        raise ConfigError(f"{where}: deskew must be one of {', '.join(DESKEW_MODES)}, got {mode!r}")
+    return mode
+
 
 def sweep_phase(points: np.ndarray) -> np.ndarray:
     """Per (N, 3+) point, its firing time relative to the scan's pose, in sweeps: -0.5 behind at the start, 0 ahead,

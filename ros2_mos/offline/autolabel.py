@@ -37,13 +37,14 @@ from typing import TYPE_CHECKING, Callable, Iterator
 import numpy as np
 
 from ros2_mos.core.config import OdometryConfig, SensorConfig
-from ros2_mos.core.deskew import deskew, scan_motions
+from ros2_mos.core.deskew import check_deskew_mode, deskew, scan_motions
 from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
 from ros2_mos.core.residuals import transform_columns
 from ros2_mos.core.sensor_check import mismatch_message
 from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_convention_file
 from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
+from ros2_mos.io.sweep import write_sweep_file
 from ros2_mos.offline.drives import Drive
 from ros2_mos.offline.objects import (
     ObjectConfig,
@@ -85,8 +86,6 @@ ODOMETRY_PASSES = {"forward": "f", "backward": "b"}
 #: How the instant convention measures an object's motion between observations: the box edges that moved together
 #: (:func:`box_shift`), or the centroid (slides while the sensor passes a standing object).
 INSTANT_MOTION = ("box", "centroid")
-#: ``AutolabelConfig.deskew``: 'auto' deskews where the drive says its sweeps are skewed (``Drive.skewed``).
-DESKEW = ("auto", "on", "off")
 #: An observation of a mover found by the online cue moves now where the online model labelled at least this share
 #: of its points moving.
 CUE_MOVING_NOW = 0.5
@@ -167,8 +166,7 @@ class AutolabelConfig:
         if self.odometry_prefer not in ODOMETRY_PASSES:
             raise ConfigError(f"autolabel: odometry_prefer must be one of {', '.join(ODOMETRY_PASSES)}, got "
                               f"{self.odometry_prefer!r}")
-        if self.deskew not in DESKEW:
-            raise ConfigError(f"autolabel: deskew must be one of {', '.join(DESKEW)}, got {self.deskew!r}")
+        check_deskew_mode(self.deskew, "autolabel")
         if self.instant_motion not in INSTANT_MOTION:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
@@ -664,7 +662,8 @@ def autolabel_drive(drive: Drive, out_root: str | Path, sensor: SensorConfig, co
                     config: AutolabelConfig = AutolabelConfig(), png: bool = False,
                     progress: ProgressFn = lambda stage, n: None) -> tuple[Path, AutolabelResult]:
     """Label ``drive`` and write ``OUT_ROOT/sequences/<name>/``: ``predictions/*.label`` (251 moving / 9 static in
-    ``convention``), ``poses.txt``, ``times.txt``, ``label_convention.txt``, ``objects.csv`` (the movers) and, with
+    ``convention``), ``poses.txt``, ``times.txt``, ``label_convention.txt``, ``sweep.txt`` (``skewed`` where the scans
+    were deskewed, else ``compensated``: how the labels took the sweeps), ``objects.csv`` (the movers) and, with
     ``png``, ``movers.png``.
 
     Everything is written under a temporary name and renamed when complete: an error leaves nothing behind.
@@ -697,6 +696,7 @@ def autolabel_drive(drive: Drive, out_root: str | Path, sensor: SensorConfig, co
         write_poses(partial / "poses.txt", result.poses)
         write_times(partial / "times.txt", result.stamps)
         write_convention_file(partial, convention)
+        write_sweep_file(partial, skewed=result.deskewed)  # how the labels took the sweeps (``map`` follows it)
         write_objects_table(partial / "objects.csv", result)
         if bev is not None:
             bev.write(partial / "movers.png", f"{drive.name}: {len(result.movers)} movers ({convention})")

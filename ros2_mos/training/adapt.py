@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from ros2_mos.core.config import SensorConfig
+from ros2_mos.core.deskew import check_deskew_mode
 from ros2_mos.core.errors import ConfigError, DatasetError, ModelError
 from ros2_mos.io.semantic_kitti import write_calib, write_label, write_poses, write_scan, write_times
 
@@ -66,9 +67,7 @@ class AdaptConfig:
     deskew: str = "auto"
 
     def __post_init__(self) -> None:
-        from ros2_mos.offline.autolabel import AutolabelConfig
-
-        AutolabelConfig(deskew=self.deskew)  # raises ConfigError for a mode autolabel does not know
+        check_deskew_mode(self.deskew, "adapt")
         for name in ("epochs", "sim_drives", "sim_scans", "sim_holdout", "batch_size", "crop_width"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (
