@@ -2,8 +2,9 @@
 
 A spinning sensor fires its columns one after another over one scan period while the vehicle moves, so each point
 is measured from the pose of its own firing time: a real scan is *skewed* (KITTI raw's and most drivers' clouds are;
-SemanticKITTI's look compensated already; the simulator's are skewed with ``--intra-sweep-motion``). At 6 m/s the
-points behind the sensor, fired first and last, lie 0.3 m off either way. Scans compared from far apart then
+SemanticKITTI's are not: KITTI's odometry benchmark compensated them with the vehicle's GPS/IMU; the simulator's are
+skewed with ``--intra-sweep-motion``). At 6 m/s the points behind the sensor, fired first and last, lie 0.3 m off
+either way. Scans compared from far apart then
 disagree where an object's bearing changed, and a thin static pole or bollard that the sensor drives past is "seen
 through" by another scan.
 
