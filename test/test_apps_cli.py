@@ -58,6 +58,8 @@ def test_outputs_that_cannot_be_written_fail_before_any_work(street, tmp_path):
         (["map", str(street), "--out", str(a_file / "m.ply")], f"--out {a_file / 'm_raw.ply'}: {a_file} is a file"),
         (["map", str(street), "--out", str(tmp_path / "m.ply"), "--png", str(tmp_path)],
          "is a folder; expected a file"),
+        (["map", str(street), "--out", str(tmp_path / "m.ply"), "--deskew", "yes"],
+         "unknown --deskew 'yes': use one of auto, on, off"),
         (["export", str(REPO / "checkpoints/fastmos_beams_free16_best.pt"), "--out", str(a_file / "m.onnx")],
          f"{a_file} is a file"),
         (["train", "--config", str(CONFIG), "--data", str(tmp_path / "none"), "--out", str(a_file)],

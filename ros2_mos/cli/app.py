@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import NoReturn
+from typing import NoReturn, Sequence
 
 import typer
 
@@ -29,6 +29,12 @@ def fail(message: str, code: int = 1) -> NoReturn:
     """Print a one-line error to stderr and exit: the only place the CLI chooses exit codes."""
     typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
     raise typer.Exit(code)
+
+
+def check_choice(value: str, choices: Sequence[str], option: str) -> None:
+    """Fail now, in one line naming ``option``, where ``value`` is not one of ``choices``."""
+    if value not in choices:
+        fail(f"unknown {option} {value!r}: use one of {', '.join(choices)}")
 
 
 def check_output(path: Path, option: str, folder: bool = False) -> None:

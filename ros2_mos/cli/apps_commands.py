@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import PARAMS_OPTION, app, check_output, fail
+from ros2_mos.cli.app import PARAMS_OPTION, app, check_choice, check_output, fail
 
 
 def _fmt(value: float, digits: int = 2) -> str:
@@ -124,10 +124,12 @@ def map_command(
         write_map,
     )
     from ros2_mos.cli.core_commands import load_config
+    from ros2_mos.core.deskew import DESKEW_MODES
     from ros2_mos.io.semantic_kitti import SemanticKittiSequence
 
     if out.suffix.lower() not in (".ply", ".pcd"):
         fail(f"--out must end in .ply or .pcd, got {out.name}")
+    check_choice(deskew, DESKEW_MODES, "--deskew")
     for path in map_paths(out):
         check_output(path, "--out")
     if png is not None:

@@ -9,7 +9,7 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import PARAMS_OPTION, app, fail
+from ros2_mos.cli.app import PARAMS_OPTION, app, check_choice, fail
 from ros2_mos.scoring.breakdown import ErrorBreakdown, class_name
 
 
@@ -91,8 +91,8 @@ def evaluate(
     from ros2_mos.scoring.evaluation import evaluate_predictions, gt_conventions
     from ros2_mos.scoring.metrics import MovingIoU
 
-    if convention is not None and convention not in CONVENTIONS:
-        fail(f"unknown --convention {convention!r}: use one of {', '.join(CONVENTIONS)}")
+    if convention is not None:
+        check_choice(convention, CONVENTIONS, "--convention")
     available = gt_conventions(gt_dir, sequences)
     if convention is not None and convention not in available:
         fail(f"{gt_dir}: no ground truth in the {convention} convention (has: {', '.join(available) or 'none'})")

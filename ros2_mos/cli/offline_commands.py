@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app, check_output, fail
+from ros2_mos.cli.app import app, check_choice, check_output, fail
 
 
 @app.command()
@@ -40,10 +40,8 @@ def autolabel(
     from ros2_mos.offline.autolabel import AutolabelConfig, autolabel_drive, progress_steps
     from ros2_mos.offline.drives import open_drive
 
-    if convention not in CONVENTIONS:
-        fail(f"unknown --convention {convention!r}: use one of {', '.join(CONVENTIONS)}")
-    if deskew not in DESKEW_MODES:
-        fail(f"unknown --deskew {deskew!r}: use one of {', '.join(DESKEW_MODES)}")
+    check_choice(convention, CONVENTIONS, "--convention")
+    check_choice(deskew, DESKEW_MODES, "--deskew")
     check_output(out, "--out", folder=True)
     opened = [open_drive(d, topic) for d in drives]
     names = [d.name for d in opened]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from ros2_mos.cli.app import app, fail
+from ros2_mos.cli.app import app, check_choice, fail
 
 
 @app.command(context_settings={"allow_extra_args": True})
@@ -51,8 +51,7 @@ def simulate(
     if bad:
         fail(f"unexpected arguments: {' '.join(bad)}")
     names = [n for item in [*sequences, *extra] for n in item.replace(",", " ").split()]
-    if convention not in CONVENTIONS:
-        fail(f"unknown --convention {convention!r}: use one of {', '.join(CONVENTIONS)}")
+    check_choice(convention, CONVENTIONS, "--convention")
     if len(set(names)) != len(names):
         fail(f"sequence names repeat: {' '.join(names)}")
     if not names:

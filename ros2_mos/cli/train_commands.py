@@ -10,7 +10,7 @@ from typing import Optional
 
 import typer
 
-from ros2_mos.cli.app import app, check_output, fail
+from ros2_mos.cli.app import app, check_choice, check_output, fail
 
 
 @app.command()
@@ -194,8 +194,7 @@ def adapt(
         fail(f"--max-minutes must be a positive number, got {max_minutes}")
     from ros2_mos.core.deskew import DESKEW_MODES
 
-    if deskew not in DESKEW_MODES:
-        fail(f"unknown --deskew {deskew!r}: use one of {', '.join(DESKEW_MODES)}")
+    check_choice(deskew, DESKEW_MODES, "--deskew")
     if out.suffix != ".onnx":
         fail(f"--out must end in .onnx, got {out.name}")
     check_output(out, "--out")
