@@ -4,9 +4,8 @@ A spinning sensor fires its columns one after another over one scan period while
 is measured from the pose of its own firing time: a real scan is *skewed* (KITTI raw's and most drivers' clouds are;
 SemanticKITTI's are not: KITTI's odometry benchmark compensated them with the vehicle's GPS/IMU; the simulator's are
 skewed with ``--intra-sweep-motion``). At 6 m/s the points behind the sensor, fired first and last, lie 0.3 m off
-either way. Scans compared from far apart then
-disagree where an object's bearing changed, and a thin static pole or bollard that the sensor drives past is "seen
-through" by another scan.
+either way. Scans compared from far apart then disagree where an object's bearing changed, and a thin static pole or
+bollard that the sensor drives past is "seen through" by another scan.
 
 The sweep is KITTI's Velodyne convention (the simulator's too): it starts behind the sensor (azimuth +pi) and turns
 clockwise seen from above, through the left and the front (phase 0, the scan's pose) to the right and back

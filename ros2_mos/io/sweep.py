@@ -2,7 +2,9 @@
 time) or compensated (every point in the frame of the scan's pose).
 
 ``ros2-mos simulate`` writes it (``skewed`` with ``--intra-sweep-motion``); ``autolabel --deskew auto`` deskews a
-folder that says ``skewed`` and leaves the rest as they are. A folder without it (real data) says nothing.
+folder that says ``skewed`` and leaves the rest as they are. A folder without it (real data) says nothing; write
+``skewed`` into it where a driver did not compensate the sweeps. autolabel writes one beside its labels too, saying
+how it took the sweeps (``skewed``: it deskewed them), which ``ros2-mos map --labels`` follows.
 """
 
 from __future__ import annotations
