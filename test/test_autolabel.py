@@ -1456,6 +1456,11 @@ def test_deskew_auto_follows_the_drive_s_word_and_on_off_override_it(jam, tmp_pa
     assert not AutoLabeler(sensor).deskews(FolderDrive(bare))
     assert AutoLabeler(sensor, AutolabelConfig(deskew="on")).deskews(FolderDrive(bare))
     assert not AutoLabeler(sensor, AutolabelConfig(deskew="off")).deskews(FolderDrive(folder))
+    # The command says when it had to take a drive's sweeps as compensated because nothing said otherwise.
+    for folder_, says in ((bare, True), (folder, False)):
+        result = runner.invoke(app, ["autolabel", str(folder_), "--out", str(tmp_path / f"out_{says}")])
+        assert result.exit_code == 0, result.output
+        assert ("sweeps taken as compensated" in result.output) == says, result.output
     (bare / "sweep.txt").write_text("wobbly\n")
     with pytest.raises(DatasetError, match="sweep.txt.*'wobbly'"):
         FolderDrive(bare)

@@ -76,5 +76,8 @@ def autolabel(
         backwards = result.odometry_followed == "b"
         poses = ", poses from KISS-ICP run backwards (forwards it fell behind)" if backwards else ""
         poses += ", scans deskewed" if result.deskewed else ""
+        if deskew == "auto" and drive.skewed is None:  # a real folder says nothing: say what was taken
+            poses += (", sweeps taken as compensated (nothing says they are skewed: --deskew on, or 'skewed' in "
+                      "sweep.txt, where the driver did not compensate them)")
         typer.echo(f"wrote {folder}: {n} scans, {len(result.movers)} movers, {100 * share:.2f} % of points moving "
                    f"({convention}), {cue}{poses}, {n / seconds:.1f} scans/s")
