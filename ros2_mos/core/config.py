@@ -324,7 +324,8 @@ class OdometryConfig:
     point_stride: int = knob(2, "KISS-ICP registers every k-th point of the scan (1 = all; MOS still labels "
                                 "every point)", min=1, max=16)
     deskew: bool = knob(False, "KISS-ICP constant-velocity deskewing; needs per-point times, which are not passed "
-                               "yet: no effect (the first scan's warning says so)")
+                               "yet: no effect (the first scan's warning says so). The MOS models do not need it: "
+                               "KITTI raw's scans deskewed changed their labels by under 1 IoU")
     # ~30 ICP iterations per scan at KISS-ICP's 1e-4; 1e-3 stops sooner (benchmarks/experiments.md, round 6).
     convergence_criterion: float = knob(1e-3, "KISS-ICP: the ICP stops when a step is smaller than this (m and rad; "
                                               "KISS-ICP's own default is 1e-4)", min=0.0, above=True, max=0.01)
