@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ros2_mos.apps.mapping import MappingConfig, fill_maps
-from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+from ros2_mos.offline.drives import FolderDrive
 from ros2_mos.scoring.suite import SIM_SEEDS, ensure_sim_sequences
 
 VOXELS = (0.1, 0.2, 0.4)
@@ -31,9 +31,9 @@ def voxel_keys(points: np.ndarray, size: float) -> np.ndarray:
 
 def raw_map(folder: Path, deskewed: bool) -> np.ndarray:
     """The drive's map of every point (nothing removed) at its true poses."""
-    sequence = SemanticKittiSequence(folder)
-    return fill_maps(sequence, sequence.require_poses(), lambda k, n: np.zeros(n, bool),
-                     MappingConfig(voxel_size=0.05), deskewed).raw.points
+    drive = FolderDrive(folder)
+    return fill_maps(drive, drive.poses, lambda k, scan: np.zeros(len(scan.points), bool),
+                     MappingConfig(voxel_size=0.05), deskewed, drive.sequence.times[: len(drive)]).raw.points
 
 
 def main() -> None:

@@ -24,6 +24,7 @@ from ros2_mos.core.config import MosConfig, PostprocessConfig
 from ros2_mos.core.errors import ConfigError, ScanError
 from ros2_mos.io.labels import MOVING, to_moving_classes
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+from ros2_mos.offline.drives import FolderDrive
 
 # ------------------------------------------------------------------ readers written from the format specs
 
@@ -161,7 +162,7 @@ def test_build_maps_with_a_threshold_model_removes_ghosts(street, tiny_model_pat
     # which has no past scan), so the cleaned map has clearly fewer ghosts, not none.
     # No speck filter: the analytic scene's random points leave the threshold model's moving pixels fragmented.
     config = MosConfig(model=str(tiny_model_path), postprocess=PostprocessConfig(min_region_pixels=0))
-    result = build_maps(street, config, MappingConfig(voxel_size=0.2, poses="gt"))
+    result = build_maps(FolderDrive(street.root), config, MappingConfig(voxel_size=0.2, poses="gt"))
     assert result.poses.shape == (len(street), 4, 4)
     raw, cleaned = ghost_share(result.raw), ghost_share(result.cleaned)
     assert raw > 0.005 and cleaned < 0.8 * raw, (raw, cleaned)
@@ -229,7 +230,7 @@ def _two_scan_drive(tmp_path, sweep: str | None):
     write_times(root / "times.txt", np.array([0.0, 0.1]))
     if sweep is not None:
         write_sweep_file(root, skewed=sweep == "skewed")
-    return SemanticKittiSequence(root), points
+    return FolderDrive(root), points
 
 
 def _labels_beside(tmp_path, seq, sweep: str | None):
@@ -239,9 +240,9 @@ def _labels_beside(tmp_path, seq, sweep: str | None):
     from ros2_mos.io.sweep import write_sweep_file
 
     folder = tmp_path / "labels" / "sequences" / seq.name
-    for f in seq.scan_files:
-        write_label(folder / "predictions" / f"{f.stem}.label", to_submission(np.zeros(3, bool)))
-    write_poses(folder / "poses.txt", seq.require_poses())
+    for name in seq.scan_names:
+        write_label(folder / "predictions" / f"{name}.label", to_submission(np.zeros(3, bool)))
+    write_poses(folder / "poses.txt", seq.poses)
     if sweep is not None:
         write_sweep_file(folder, skewed=sweep == "skewed")
     return tmp_path / "labels"
@@ -287,8 +288,8 @@ def test_the_online_map_deskews_with_the_pipeline_s_poses(street, tiny_model_pat
     """Deskewing moves the same scans' points (the street's poses move the sensor), and changes nothing else: the
     same poses, the same share labelled moving."""
     config = MosConfig(model=str(tiny_model_path), postprocess=PostprocessConfig(min_region_pixels=0))
-    plain = build_maps(street, config, MappingConfig(voxel_size=0.2, poses="gt", deskew="off"))
-    bent = build_maps(street, config, MappingConfig(voxel_size=0.2, poses="gt", deskew="on"))
+    plain = build_maps(FolderDrive(street.root), config, MappingConfig(voxel_size=0.2, poses="gt", deskew="off"))
+    bent = build_maps(FolderDrive(street.root), config, MappingConfig(voxel_size=0.2, poses="gt", deskew="on"))
     assert bent.deskewed and not plain.deskewed
     np.testing.assert_allclose(bent.poses, plain.poses)
     assert bent.moving_share == pytest.approx(plain.moving_share)

@@ -1438,6 +1438,16 @@ def test_deskewing_a_skewed_drive_drops_the_static_points_it_calls_moving(tmp_pa
                                  "semantickitti"])
     fp_bag = int(next(line.split()[3] for line in result.output.splitlines() if line.startswith("       all")))
     assert abs(fp_bag - false_moving["auto"]) <= max(50, 0.2 * false_moving["auto"]), (fp_bag, false_moving)
+    # `map` takes the bag too, with its labels, deskewed by the clouds' own times: about the folder's maps.
+    raw_points = {}
+    for name, drive, labels in (("bag", tmp_path / "bag" / "00", tmp_path / "from_bag"),
+                                ("folder", tmp_path / "sim" / "sequences" / "00", tmp_path / "auto")):
+        result = runner.invoke(app, ["map", str(drive), "--out", str(tmp_path / f"map_{name}_again.ply"),
+                                     "--labels", str(labels)])
+        assert result.exit_code == 0 and "40 scans, deskewed" in result.output, result.output
+        raw_points[name] = next(int(line.split()[1]) for line in result.output.splitlines()
+                                if line.split()[:1] == ["raw"])
+    assert abs(raw_points["bag"] - raw_points["folder"]) <= 0.02 * raw_points["folder"], raw_points
 
 
 def test_deskew_auto_follows_the_drive_s_word_and_on_off_override_it(jam, tmp_path):

@@ -25,8 +25,9 @@ from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.projection import finite_mask
 from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
-from ros2_mos.io.semantic_kitti import KITTI_TR, Frame, SemanticKittiSequence
+from ros2_mos.io.semantic_kitti import KITTI_TR
 from ros2_mos.io.sweep import read_sweep_file
+from ros2_mos.offline.drives import Drive, DriveScan, FolderDrive
 
 # Per-point tags a map keeps (ground truth of the scan point a map point came from).
 TAG_STATIC = 0
@@ -283,111 +284,142 @@ class MappingResult:
         return self.builder.cleaned
 
 
+#: Wraps the pass over a drive's scans (a progress bar)
+Progress = Callable[[Iterable[DriveScan]], Iterable[DriveScan]]
+
+
 def build_maps(
-    sequence: SemanticKittiSequence,
+    drive: Drive,
     config: MosConfig = MosConfig(),
     mapping: MappingConfig = MappingConfig(),
     model: MosModel | None = None,
-    progress: Callable[[Iterable[Frame]], Iterable[Frame]] = lambda frames: frames,
+    progress: Progress = lambda scans: scans,
 ) -> MappingResult:
-    """Run MOS over a sequence and build the raw and the MOS-cleaned map from the same poses.
+    """Run MOS over a drive (a sequence folder or a bag: :func:`~ros2_mos.offline.drives.open_drive`) and build the
+    raw and the MOS-cleaned map from the same poses.
 
     With ``mapping.poses='estimated'`` the poses are the pipeline's own KISS-ICP with
-    ``map_update='static'`` (what the node does online); with ``'gt'`` the dataset's poses.
+    ``map_update='static'`` (what the node does online); with ``'gt'`` the drive's poses.
     The maps are filled once every pose is known (a scan is deskewed with the poses before and after it).
     """
     from ros2_mos.core.pipeline import MosPipeline
 
-    if mapping.poses == "gt":
-        sequence.require_poses("mapping with ground-truth poses")
+    given = _given_poses(drive) if mapping.poses == "gt" else None
     cfg = dataclasses.replace(config, odometry=dataclasses.replace(config.odometry, map_update="static"))
     pipeline = MosPipeline(cfg, model)
     pipeline.reset()
-    poses, moving, shares = [], [], []
-    for frame in progress(sequence):
-        pose = frame.pose if mapping.poses == "gt" else None
-        res = pipeline.process(frame.points, frame.remission, frame.timestamp, pose=pose)
+    poses, moving, shares, stamps = [], [], [], []
+    for scan in progress(drive):
+        res = pipeline.process(scan.points, scan.intensity, scan.stamp,
+                               pose=given[scan.index] if given is not None else None)
         poses.append(res.pose)
         moving.append(np.packbits(res.labels.astype(bool)))  # a bit per point: bounded for a long drive
+        stamps.append(scan.stamp)
         n_valid = int(res.valid.sum())
         shares.append(float(res.labels.sum()) / n_valid if n_valid else 0.0)
-    deskewed = _deskews(mapping, sequence)
-    builder = fill_maps(sequence, np.array(poses), lambda k, n: np.unpackbits(moving[k], count=n).astype(bool),
-                         mapping, deskewed)
+    deskewed = _deskews(mapping, drive)
+    builder = fill_maps(drive, np.array(poses), lambda k, scan: np.unpackbits(moving[k], count=len(scan.points))
+                        .astype(bool), mapping, deskewed, np.array(stamps))
     return MappingResult(builder, np.array(poses), float(np.mean(shares)), deskewed)
 
 
 def build_maps_from_labels(
-    sequence: SemanticKittiSequence,
+    drive: Drive,
     labels_root: str | Path,
     mapping: MappingConfig = MappingConfig(),
-    progress: Callable[[Iterable[Frame]], Iterable[Frame]] = lambda frames: frames,
+    progress: Progress = lambda scans: scans,
 ) -> MappingResult:
     """The raw and the cleaned map from labels written beforehand (``ros2-mos autolabel`` or ``infer``):
-    ``LABELS_ROOT/sequences/<name>/predictions/*.label`` (every id 251-259 moving), with the poses written beside
-    them (``poses.txt``, autolabel's KISS-ICP over the whole drive) or, with ``mapping.poses='gt'``, the dataset's.
-    With ``mapping.deskew='auto'`` the scans are deskewed where autolabel deskewed them (its ``sweep.txt``).
+    ``LABELS_ROOT/sequences/<name>/predictions/*.label`` (every id 251-259 moving; one per point as stored), with the
+    poses written beside them (``poses.txt``, autolabel's KISS-ICP over the whole drive) or, with
+    ``mapping.poses='gt'``, the drive's. With ``mapping.deskew='auto'`` the scans are deskewed where autolabel
+    deskewed them (its ``sweep.txt``), by the stamps written beside the labels (``times.txt``) where there are.
     """
-    from ros2_mos.io.semantic_kitti import read_label, read_poses
+    from ros2_mos.io.semantic_kitti import read_label, read_poses, read_times
 
-    folder = Path(labels_root) / "sequences" / sequence.name
+    folder = Path(labels_root) / "sequences" / drive.name
     predictions = folder / "predictions"
     if not predictions.is_dir():
-        raise DatasetError(f"no labels for {sequence.name}: {predictions} is missing")
+        raise DatasetError(f"no labels for {drive.name}: {predictions} is missing")
+    n = len(drive)
     if mapping.poses == "gt":
-        poses = sequence.require_poses("mapping with ground-truth poses")
+        poses = _given_poses(drive)
     else:
         if not (folder / "poses.txt").is_file():
-            raise DatasetError(f"{folder}: no poses.txt beside the labels (or use the dataset's: poses 'gt')")
+            raise DatasetError(f"{folder}: no poses.txt beside the labels (or use the drive's: poses 'gt')")
         poses = read_poses(folder / "poses.txt", KITTI_TR)
-        if len(poses) < len(sequence):
-            raise DatasetError(f"{folder / 'poses.txt'}: {len(poses)} poses for {len(sequence)} scans")
-    poses = np.asarray(poses[: len(sequence)])
-    label_files = [predictions / (f.stem + ".label") for f in sequence.scan_files]
-    deskewed = _deskews(mapping, sequence, folder)
+        if len(poses) < n:
+            raise DatasetError(f"{folder / 'poses.txt'}: {len(poses)} poses for {n} scans")
+    poses = np.asarray(poses[:n])
+    label_files = [predictions / f"{name}.label" for name in drive.scan_names]
+    stamps = read_times(folder / "times.txt")[:n] if (folder / "times.txt").is_file() else None
+    deskewed = _deskews(mapping, drive, folder)
     shares: list[float] = []
 
-    def moving(k: int, n: int) -> np.ndarray:
-        mask = to_moving_classes(read_label(label_files[k], n)) == MOVING
-        shares.append(float(mask.mean()) if n else 0.0)
+    def moving(k: int, scan: DriveScan) -> np.ndarray:
+        mask = (to_moving_classes(read_label(label_files[k], scan.stored)) == MOVING)[scan.kept]
+        shares.append(float(mask.mean()) if len(mask) else 0.0)
         return mask
 
-    builder = fill_maps(sequence, poses, moving, mapping, deskewed, progress)
+    builder = fill_maps(drive, poses, moving, mapping, deskewed, stamps, progress)
     return MappingResult(builder, poses, float(np.mean(shares)), deskewed)
 
 
-def _deskews(mapping: MappingConfig, sequence: SemanticKittiSequence, labels_folder: Path | None = None) -> bool:
-    """Whether the maps deskew ``sequence``'s scans (``MappingConfig.deskew``; 'auto': the labels' folder's
-    ``sweep.txt`` where it has one, else the sequence's)."""
+def has_ground_truth(drive: Drive) -> bool:
+    """Whether ``drive`` has labels of its own (a sequence folder's ``labels/``): the maps' ghost share needs them."""
+    return isinstance(drive, FolderDrive) and drive.sequence.has_labels
+
+
+def _given_poses(drive: Drive) -> np.ndarray:
+    """The drive's own poses, or a one-line DatasetError."""
+    if drive.poses is None:
+        raise DatasetError(f"{drive.name}: mapping with the drive's own poses needs its poses.txt")
+    return drive.poses
+
+
+def _deskews(mapping: MappingConfig, drive: Drive, labels_folder: Path | None = None) -> bool:
+    """Whether the maps deskew ``drive``'s scans (``MappingConfig.deskew``; 'auto': the labels' folder's
+    ``sweep.txt`` where it has one, else what the drive says: :attr:`Drive.skewed`)."""
     if mapping.deskew != "auto":
         return mapping.deskew == "on"
     said = read_sweep_file(labels_folder) if labels_folder is not None else None
-    if said is None:
-        said = read_sweep_file(sequence.root)
-    return said is True
+    return (said if said is not None else drive.skewed) is True
 
 
 def fill_maps(
-    sequence: SemanticKittiSequence,
+    drive: Drive,
     poses: np.ndarray,
-    moving: Callable[[int, int], np.ndarray],
+    moving: Callable[[int, DriveScan], np.ndarray],
     mapping: MappingConfig,
     deskewed: bool,
-    progress: Callable[[Iterable[Frame]], Iterable[Frame]] = lambda frames: frames,
+    stamps: np.ndarray | None = None,
+    progress: Progress = lambda scans: scans,
 ) -> MapBuilder:
-    """Both maps from every scan of ``sequence`` at ``poses``; ``moving(k, n)``: scan k's n points' mask of the
-    points the cleaned map leaves out. Deskewed scans keep their points' order, so the mask still fits."""
+    """Both maps from every scan of ``drive`` at ``poses``; ``moving(k, scan)``: the mask over scan k's points of
+    those the cleaned map leaves out. Deskewed (``stamps``: one per scan, to scale each scan's motion to one sweep
+    where they increase), a scan keeps its points' order, so the mask still fits; a bag's per-point times give the
+    firing phases where its clouds carry them."""
     motions = None
     if deskewed:
-        stamps = np.asarray(sequence.times[: len(sequence)], np.float64)
-        motions = scan_motions(poses, stamps if np.all(np.diff(stamps) > 0) else None)
+        steady = stamps is not None and len(stamps) == len(poses) and bool(np.all(np.diff(stamps) > 0))
+        motions = scan_motions(poses, stamps if steady else None)
+    truth = _ground_truth(drive)
     builder = MapBuilder(mapping)
-    for frame in progress(sequence):
-        k = frame.index
-        points = frame.points if motions is None else deskew(frame.points, motions[k])
-        builder.add(points, poses[k], moving(k, len(frame.points)), gt_tags(frame.labels, len(frame.points)),
-                    frame.timestamp)
+    for scan in progress(drive):
+        k = scan.index
+        points = scan.points if motions is None else deskew(scan.points, motions[k], scan.phase)
+        builder.add(points, poses[k], moving(k, scan), truth(k, scan), scan.stamp)
     return builder
+
+
+def _ground_truth(drive: Drive) -> Callable[[int, DriveScan], np.ndarray]:
+    """Per scan, the map tags of its points from the drive's own labels (:func:`gt_tags`; unknown without)."""
+    if not has_ground_truth(drive):
+        return lambda k, scan: gt_tags(None, len(scan.points))
+    from ros2_mos.io.semantic_kitti import read_label
+
+    sequence = drive.sequence  # type: ignore[attr-defined]
+    return lambda k, scan: gt_tags(read_label(sequence.label_path(k), scan.stored)[scan.kept], len(scan.points))
 
 
 # ---------------------------------------------------------------- files

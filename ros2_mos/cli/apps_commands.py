@@ -96,7 +96,8 @@ def odometry(
 
 @app.command("map")
 def map_command(
-    sequence_dir: Path = typer.Argument(..., help="SemanticKITTI sequence folder (labels/ give the ghost share)"),
+    sequence_dir: Path = typer.Argument(..., help="SemanticKITTI sequence folder (labels/ give the ghost share) or "
+                                        "rosbag2 bag"),
     out: Path = typer.Option(..., "--out", help="map.ply or map.pcd: writes map_raw.<ext> and map_cleaned.<ext>"),
     png: Optional[Path] = typer.Option(None, "--png", help="Bird's-eye view of raw and cleaned map side by side"),
     model: Optional[Path] = typer.Option(None, help="ONNX model (default: the shipped model)"),
@@ -109,7 +110,9 @@ def map_command(
                                           "estimated poses are then the poses.txt written beside them"),
     deskew: str = typer.Option("auto", help="Deskew each scan before it enters the maps (its motion from the poses "
                                "before and after it): on, off, or auto: as autolabel took the sweeps (the sweep.txt "
-                               "beside --labels), else where the sequence's sweep.txt says skewed"),
+                               "beside --labels), else where the drive says skewed (a folder's sweep.txt, a bag's "
+                               "per-point times)"),
+    topic: Optional[str] = typer.Option(None, help="PointCloud2 topic of a bag (default: its only one)"),
 ) -> None:
     """Accumulate the scans into a raw and a MOS-cleaned voxel map; ghost share on labelled data."""
     from tqdm import tqdm
@@ -119,13 +122,14 @@ def map_command(
         build_maps,
         build_maps_from_labels,
         ghost_share,
+        has_ground_truth,
         map_paths,
         write_bev_png,
         write_map,
     )
     from ros2_mos.cli.core_commands import load_config
     from ros2_mos.core.deskew import DESKEW_MODES
-    from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+    from ros2_mos.offline.drives import open_drive
 
     if out.suffix.lower() not in (".ply", ".pcd"):
         fail(f"--out must end in .ply or .pcd, got {out.name}")
@@ -134,22 +138,23 @@ def map_command(
         check_output(path, "--out")
     if png is not None:
         check_output(png, "--png")
-    seq = SemanticKittiSequence(sequence_dir)
+    drive = open_drive(sequence_dir, topic)
     mapping = MappingConfig(voxel_size=voxel_size, max_range=max_range, poses=poses, deskew=deskew)
-    bar = lambda it: tqdm(it, total=len(seq), desc=f"map {seq.name}")  # noqa: E731
+    bar = lambda it: tqdm(it, total=len(drive), desc=f"map {drive.name}")  # noqa: E731
     if labels is not None:
-        result = build_maps_from_labels(seq, labels, mapping, progress=bar)
+        result = build_maps_from_labels(drive, labels, mapping, progress=bar)
     else:
-        result = build_maps(seq, load_config(params, model), mapping, progress=bar)
+        result = build_maps(drive, load_config(params, model), mapping, progress=bar)
+    truth = has_ground_truth(drive)
     raw_path, clean_path = map_paths(out)
     write_map(raw_path, result.raw.points)
     write_map(clean_path, result.cleaned.points)
-    typer.echo(f"{seq.name}: {len(seq)} scans{', deskewed' if result.deskewed else ''}, "
+    typer.echo(f"{drive.name}: {len(drive)} scans{', deskewed' if result.deskewed else ''}, "
                f"{100 * result.moving_share:.1f} % of points labelled moving")
     typer.echo(f"{'map':>8} {'points':>10} {'ghost %':>8}  file")
     for name, vm, path in (("raw", result.raw, raw_path), ("cleaned", result.cleaned, clean_path)):
-        typer.echo(f"{name:>8} {len(vm):>10} {_fmt(100 * ghost_share(vm), 3) if seq.has_labels else '-':>8}  {path}")
-    if seq.has_labels:
+        typer.echo(f"{name:>8} {len(vm):>10} {_fmt(100 * ghost_share(vm), 3) if truth else '-':>8}  {path}")
+    if truth:
         typer.echo("static voxels of the raw map kept in the cleaned map: "
                    f"{_fmt(100 * result.builder.static_kept(), 1)} %")
     if png is not None:

@@ -679,7 +679,7 @@ def autolabel_drive(drive: Drive, out_root: str | Path, sensor: SensorConfig, co
         workdir.mkdir()
         labeler = AutoLabeler(sensor, config)
         result = labeler.label(drive, workdir, progress)
-        names = getattr(drive, "scan_names", [f"{i:06d}" for i in range(result.scans)])
+        names = drive.scan_names
         bev = BirdsEye() if png else None
         for k, scan in enumerate(drive):  # read again: each label file has one label per stored point
             moving = scan_labels(labeler, result, workdir, k, convention)

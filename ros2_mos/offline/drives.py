@@ -33,6 +33,7 @@ class Drive(Protocol):
     name: str
     poses: np.ndarray | None  # (N, 4, 4) LiDAR poses where the drive has them
     skewed: bool | None  # its sweeps are skewed (True) or compensated (False), where the drive says (sweep.txt)
+    scan_names: list[str]  # per scan, the stem of its label file (a folder's scan files; a bag's 000000, 000001, ...)
 
     def __len__(self) -> int: ...
 
