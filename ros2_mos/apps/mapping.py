@@ -371,7 +371,9 @@ def has_ground_truth(drive: Drive) -> bool:
 
 
 def _given_poses(drive: Drive) -> np.ndarray:
-    """The drive's own poses, or a one-line DatasetError."""
+    """The drive's own poses, or a one-line DatasetError (a folder's says what is wrong with its poses.txt)."""
+    if isinstance(drive, FolderDrive):
+        return drive.sequence.require_poses("mapping with the drive's own poses")
     if drive.poses is None:
         raise DatasetError(f"{drive.name}: mapping with the drive's own poses needs its poses.txt")
     return drive.poses
