@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ros2_mos.core.config import SensorConfig
-from ros2_mos.core.deskew import deskew, rotation_log, scan_motions, sweep_phase
+from ros2_mos.core.deskew import deskew, deskew_wanted, drive_motions, rotation_log, scan_motions, sweep_phase
 from ros2_mos.core.errors import ConfigError
 from ros2_mos.sim.geometry import TriangleSoup, box
 from ros2_mos.sim.lidar import Lidar
@@ -50,6 +50,16 @@ def test_the_motion_of_a_scan_is_the_mean_step_between_the_poses_around_it() -> 
             scan_motions(poses, bad)
     with pytest.raises(ConfigError, match="poses"):
         scan_motions(np.eye(4))
+
+
+def test_a_drive_is_deskewed_where_the_mode_or_its_word_says_and_its_stamps_scale_what_they_can() -> None:
+    assert [deskew_wanted(mode, said) for mode in ("on", "off", "auto") for said in (True, False, None)] == [
+        True, True, True, False, False, False, True, False, False]
+    poses = np.stack([pose(0.0, 0.0, 0.0), pose(1.0, 0.0, 0.0), pose(3.0, 0.0, 0.0), pose(4.0, 0, 0)])
+    # stamps that increase scale the steps (the dropped scan: 1 m a sweep throughout); others, or none, do not
+    assert drive_motions(poses, np.array([0.0, 0.1, 0.3, 0.4])) == pytest.approx(np.tile([0, 0, 0, 1.0, 0, 0], (4, 1)))
+    for stamps in (None, np.array([0.0, 0.1, 0.1, 0.2]), np.array([0.0, 0.1, 0.2])):
+        assert drive_motions(poses, stamps) == pytest.approx(scan_motions(poses))
 
 
 def test_deskewing_by_hand() -> None:

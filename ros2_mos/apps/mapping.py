@@ -20,7 +20,7 @@ import numpy as np
 
 from ros2_mos.core.atomic import atomic_path, write_bytes_atomically
 from ros2_mos.core.config import MosConfig
-from ros2_mos.core.deskew import check_deskew_mode, deskew, scan_motions
+from ros2_mos.core.deskew import check_deskew_mode, deskew, deskew_wanted, drive_motions
 from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.projection import finite_mask
@@ -382,10 +382,8 @@ def _given_poses(drive: Drive) -> np.ndarray:
 def _deskews(mapping: MappingConfig, drive: Drive, labels_folder: Path | None = None) -> bool:
     """Whether the maps deskew ``drive``'s scans (``MappingConfig.deskew``; 'auto': the labels' folder's
     ``sweep.txt`` where it has one, else what the drive says: :attr:`Drive.skewed`)."""
-    if mapping.deskew != "auto":
-        return mapping.deskew == "on"
     said = read_sweep_file(labels_folder) if labels_folder is not None else None
-    return (said if said is not None else drive.skewed) is True
+    return deskew_wanted(mapping.deskew, said if said is not None else drive.skewed)
 
 
 def fill_maps(
@@ -401,10 +399,7 @@ def fill_maps(
     those the cleaned map leaves out. Deskewed (``stamps``: one per scan, to scale each scan's motion to one sweep
     where they increase), a scan keeps its points' order, so the mask still fits; a bag's per-point times give the
     firing phases where its clouds carry them."""
-    motions = None
-    if deskewed:
-        steady = stamps is not None and len(stamps) == len(poses) and bool(np.all(np.diff(stamps) > 0))
-        motions = scan_motions(poses, stamps if steady else None)
+    motions = drive_motions(poses, stamps) if deskewed else None
     truth = _ground_truth(drive)
     builder = MapBuilder(mapping)
     for scan in progress(drive):

@@ -33,6 +33,19 @@ def check_deskew_mode(mode: str, where: str) -> str:
     return mode
 
 
+def deskew_wanted(mode: str, said: bool | None) -> bool:
+    """Whether a drive's scans are deskewed under ``mode`` (:data:`DESKEW_MODES`): 'on' always, 'off' never, 'auto'
+    where what the drive says (``said``: a ``sweep.txt``'s word, a bag's per-point times; None: nothing) is skewed."""
+    return mode == "on" or (mode == "auto" and said is True)
+
+
+def drive_motions(poses: np.ndarray, stamps: np.ndarray | None) -> np.ndarray:
+    """:func:`scan_motions` of a drive's poses, scaled by its ``stamps`` where there is one per pose and they
+    increase; otherwise (a bag's stamps that do not, none at all) each step is taken as one sweep."""
+    steady = stamps is not None and len(stamps) == len(poses) and bool(np.all(np.diff(stamps) > 0))
+    return scan_motions(poses, stamps if steady else None)
+
+
 def sweep_phase(points: np.ndarray) -> np.ndarray:
     """Per (N, 3+) point, its firing time relative to the scan's pose, in sweeps: -0.5 behind at the start, 0 ahead,
     +0.5 behind at the end (azimuth +pi -> -pi, clockwise)."""

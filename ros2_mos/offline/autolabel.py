@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Callable, Iterator
 import numpy as np
 
 from ros2_mos.core.config import OdometryConfig, SensorConfig
-from ros2_mos.core.deskew import check_deskew_mode, deskew, scan_motions
+from ros2_mos.core.deskew import check_deskew_mode, deskew, deskew_wanted, drive_motions
 from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
 from ros2_mos.core.residuals import transform_columns
 from ros2_mos.core.sensor_check import mismatch_message
@@ -260,8 +260,8 @@ class AutoLabeler:
         poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
         tracker = Tracker(self.config.tracks)
         motions = None
-        if self.deskews(drive):  # a bag's stamps that do not increase: each step taken as one sweep
-            motions = scan_motions(poses, stamps if np.all(np.diff(stamps) > 0) else None)
+        if self.deskews(drive):
+            motions = drive_motions(poses, stamps)
         cue_skipped, blind = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir,
                                                         progress, motions)
         tracker.cut_jumps()
@@ -284,8 +284,7 @@ class AutoLabeler:
     def deskews(self, drive: Drive) -> bool:
         """Whether ``drive``'s scans are deskewed (``AutolabelConfig.deskew``; 'auto': where the drive says its
         sweeps are skewed)."""
-        mode = self.config.deskew
-        return mode == "on" or (mode == "auto" and drive.skewed is True)
+        return deskew_wanted(self.config.deskew, drive.skewed)
 
     def _poses(self, drive: Drive, vehicle: VehicleReturns, workdir: Path,
                progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int], str]:
