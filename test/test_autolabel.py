@@ -17,7 +17,7 @@ from ros2_mos.core.config import SensorConfig, sensor_preset
 from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.core.projection import pixel_index
 from ros2_mos.io.labels import instance_ids, semantic_ids
-from ros2_mos.io.semantic_kitti import SemanticKittiSequence
+from ros2_mos.io.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_poses
 from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, label_objects, scan_labels
 from ros2_mos.offline.drives import FolderDrive, _scan
 from ros2_mos.offline.objects import (
@@ -1373,6 +1373,36 @@ def test_every_stored_point_gets_a_label_also_non_finite_and_zero_ones(tmp_path)
         labels = read_label(out / "sequences" / "scene" / "predictions" / f"{k:06d}.label", n)
         if k in (0, 5):
             assert (labels[:3] == 9).all() and (labels[-3:] == 9).all()
+
+
+def test_use_poses_takes_semantickitti_s_seven_digit_poses(tmp_path):
+    """Poses written as SemanticKITTI writes them (%e: seven significant digits) of a sensor that turns as it drives:
+    the pair registration starts from them (it aborted the process on rotations off by 1e-10)."""
+    from ros2_mos.io.semantic_kitti import read_label, read_scan, write_scan
+
+    car = Mover((4.5, 1.8, 1.5), lambda k: (8.0 + 0.6 * k, 4.0), 2)
+    folder = write_drive(tmp_path, 12, lambda k: 0.3 * k, [car], WALLS)
+    lidar = read_poses(folder / "poses.txt", KITTI_TR)
+    for k in range(12):  # the sensor turned by 0.05 k rad: the same world points, seen from the turned sensor
+        c, s = np.cos(0.05 * k), np.sin(0.05 * k)
+        turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        lidar[k, :3, :3] = lidar[k, :3, :3] @ turn
+        scan = read_scan(folder / "velodyne" / f"{k:06d}.bin")
+        write_scan(folder / "velodyne" / f"{k:06d}.bin", (scan[:, :3] @ turn).astype(np.float32), scan[:, 3])
+    camera = KITTI_TR @ lidar @ np.linalg.inv(KITTI_TR)
+    np.savetxt(folder / "poses.txt", camera[:, :3].reshape(-1, 12), fmt="%e")
+    result = runner.invoke(app, ["autolabel", str(folder), "--out", str(tmp_path / "out"), "--use-poses",
+                                 "--sensor", "vlp32c"])
+    assert result.exit_code == 0, result.output
+    written = read_poses(tmp_path / "out" / "sequences" / "scene" / "poses.txt", KITTI_TR)
+    np.testing.assert_allclose(written, lidar, atol=1e-5)
+    found = truth = 0
+    for k in range(12):  # the car is found from the turned, rounded poses
+        n = len(read_scan(folder / "velodyne" / f"{k:06d}.bin"))
+        moving = semantic_ids(read_label(folder / "labels" / f"{k:06d}.label", n)) >= 251
+        labelled = read_label(tmp_path / "out" / "sequences" / "scene" / "predictions" / f"{k:06d}.label", n) == 251
+        found, truth = found + int((moving & labelled).sum()), truth + int(moving.sum())
+    assert truth > 1000 and found > 0.95 * truth
 
 
 def test_a_drive_scan_keeps_the_finite_points_with_a_range_and_says_where_they_sat():

@@ -99,3 +99,29 @@ def test_a_bad_poses_file_matters_only_where_poses_are_used(tmp_path):
     (tmp_path / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 nan\n" * 3)
     with pytest.raises(DatasetError, match="line 1 holds a non-finite number"):
         SemanticKittiSequence(tmp_path).require_poses()
+
+
+def test_poses_rounded_to_seven_digits_read_back_as_rotations(tmp_path):
+    """SemanticKITTI's own poses.txt has seven significant digits: its rotations are off orthonormal by ~1e-7, which
+    KISS-ICP's Sophus aborts on; read_poses hands back the nearest rotation, within the rounding of the file."""
+    yaw = np.radians(37.0)
+    pose = np.eye(4)
+    pose[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    pose[:3, 3] = [1.0, 2.0, 3.0]
+    np.savetxt(tmp_path / "poses.txt", np.tile(pose[:3].reshape(1, 12), (2, 1)), fmt="%e")
+    rounded = np.loadtxt(tmp_path / "poses.txt")[0].reshape(3, 4)[:, :3]
+    assert np.abs(rounded.T @ rounded - np.eye(3)).max() > 1e-9  # the file's rotation is not one
+    read = read_poses(tmp_path / "poses.txt")
+    assert np.abs(read[0, :3, :3].T @ read[0, :3, :3] - np.eye(3)).max() < 1e-14
+    assert np.linalg.det(read[0, :3, :3]) > 0
+    np.testing.assert_allclose(read[0], pose, atol=1e-6)  # the file's own precision
+
+
+@pytest.mark.parametrize("row, message", [
+    ("0.9 0 0 0 0 1 0 0 0 0 1 0", "line 2 is no rigid pose"),  # scaled
+    ("-1 0 0 0 0 1 0 0 0 0 1 0", "line 2 is no rigid pose"),  # a mirror
+])
+def test_a_pose_whose_rotation_is_no_rotation_is_a_one_line_error(tmp_path, row, message):
+    (tmp_path / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" + row + "\n")
+    with pytest.raises(DatasetError, match=message):
+        read_poses(tmp_path / "poses.txt")

@@ -27,7 +27,7 @@ from ros2_mos.core.projection import finite_mask
 from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
 from ros2_mos.io.semantic_kitti import KITTI_TR
 from ros2_mos.io.sweep import read_sweep_file
-from ros2_mos.offline.drives import Drive, DriveScan, FolderDrive
+from ros2_mos.offline.drives import Drive, DriveScan, FolderDrive, given_poses
 
 # Per-point tags a map keeps (ground truth of the scan point a map point came from).
 TAG_STATIC = 0
@@ -304,7 +304,7 @@ def build_maps(
     """
     from ros2_mos.core.pipeline import MosPipeline
 
-    given = _given_poses(drive) if mapping.poses == "gt" else None
+    given = given_poses(drive, "mapping with the drive's own poses") if mapping.poses == "gt" else None
     cfg = dataclasses.replace(config, odometry=dataclasses.replace(config.odometry, map_update="static"))
     pipeline = MosPipeline(cfg, model)
     pipeline.reset()
@@ -343,7 +343,7 @@ def build_maps_from_labels(
         raise DatasetError(f"no labels for {drive.name}: {predictions} is missing")
     n = len(drive)
     if mapping.poses == "gt":
-        poses = _given_poses(drive)
+        poses = given_poses(drive, "mapping with the drive's own poses")
     else:
         if not (folder / "poses.txt").is_file():
             raise DatasetError(f"{folder}: no poses.txt beside the labels (or use the drive's: poses 'gt')")
@@ -368,15 +368,6 @@ def build_maps_from_labels(
 def has_ground_truth(drive: Drive) -> bool:
     """Whether ``drive`` has labels of its own (a sequence folder's ``labels/``): the maps' ghost share needs them."""
     return isinstance(drive, FolderDrive) and drive.sequence.has_labels
-
-
-def _given_poses(drive: Drive) -> np.ndarray:
-    """The drive's own poses, or a one-line DatasetError (a folder's says what is wrong with its poses.txt)."""
-    if isinstance(drive, FolderDrive):
-        return drive.sequence.require_poses("mapping with the drive's own poses")
-    if drive.poses is None:
-        raise DatasetError(f"{drive.name}: mapping with the drive's own poses needs its poses.txt")
-    return drive.poses
 
 
 def _deskews(mapping: MappingConfig, drive: Drive, labels_folder: Path | None = None) -> bool:

@@ -34,6 +34,11 @@ KITTI_TR = np.array(
 )
 
 
+#: How far (the largest entry of R^T R - I) a pose file's rotation may be off a rotation matrix: rounding to a few
+#: digits is mended (:func:`nearest_rigid`), more is refused.
+ROTATION_TOLERANCE = 1e-3
+
+
 def read_scan(path: str | Path) -> np.ndarray:
     """Read a ``.bin`` scan as an (N, 4) float32 array: x, y, z, remission."""
     path = Path(path)
@@ -120,9 +125,28 @@ def read_poses(path: str | Path, tr: np.ndarray | None = None) -> np.ndarray:
         raise DatasetError(f"{path}: line {bad[0] + 1} holds a non-finite number")
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     poses[:, :3, :4] = rows.reshape(-1, 3, 4)
+    poses = nearest_rigid(poses, path)
     if tr is not None:
-        poses = np.linalg.inv(tr) @ poses @ tr
+        poses = nearest_rigid(np.linalg.inv(tr) @ poses @ tr, path)
     return poses
+
+
+def nearest_rigid(poses: np.ndarray, path: str | Path) -> np.ndarray:
+    """``poses`` (M, 4, 4) with each rotation replaced by the nearest rotation matrix (SVD).
+
+    A file's digits round its rotations off orthonormal (SemanticKITTI's own ``poses.txt`` has seven significant
+    digits), and KISS-ICP's Sophus aborts the process on a rotation off by 1e-10. A rotation farther off than
+    ``ROTATION_TOLERANCE``, or a reflection, is no rigid pose: a DatasetError naming the line.
+    """
+    rotations = poses[:, :3, :3]
+    off = np.abs(np.swapaxes(rotations, 1, 2) @ rotations - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((off > ROTATION_TOLERANCE) | (np.linalg.det(rotations) <= 0))
+    if len(bad):
+        raise DatasetError(f"{path}: line {bad[0] + 1} is no rigid pose (its 3x3 part is not a rotation)")
+    u, _, vt = np.linalg.svd(rotations)
+    out = poses.copy()
+    out[:, :3, :3] = u @ vt
+    return out
 
 
 def write_poses(path: str | Path, lidar_poses: np.ndarray, tr: np.ndarray | None = KITTI_TR) -> None:

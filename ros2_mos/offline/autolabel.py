@@ -45,7 +45,7 @@ from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_conve
 from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.io.sweep import write_sweep_file
-from ros2_mos.offline.drives import Drive
+from ros2_mos.offline.drives import Drive, given_poses
 from ros2_mos.offline.objects import (
     ObjectConfig,
     VehicleReturns,
@@ -295,8 +295,7 @@ class AutoLabeler:
         from ros2_mos.core.odometry import KissIcpOdometry
 
         use_own = self.config.use_poses
-        if use_own and drive.poses is None:
-            raise DatasetError(f"{drive.name}: --use-poses, but the drive has no poses.txt")
+        own = given_poses(drive, "--use-poses") if use_own else None
         odometry = None if use_own else KissIcpOdometry(self.odometry_config)
         keep = not use_own and self.config.backward_odometry
         poses, stamps, sizes = [], [], []
@@ -310,12 +309,12 @@ class AutoLabeler:
                 poses.append(odometry.register(scan.points))
                 if keep:
                     np.save(workdir / f"kiss{scan.index:06d}.npy", odometry.last_frame)
-            vehicle.add(scan.points, poses[-1] if odometry is not None else drive.poses[scan.index])
+            vehicle.add(scan.points, poses[-1] if odometry is not None else own[scan.index])
             stamps.append(scan.stamp)
             sizes.append(len(scan.points))
             progress("poses", 1)
         if use_own:
-            return np.asarray(drive.poses[: len(stamps)], np.float64), np.asarray(stamps), sizes, ""
+            return np.asarray(own[: len(stamps)], np.float64), np.asarray(stamps), sizes, ""
         forward = _restart((scan.points for scan in drive), np.asarray(poses, np.float64), self.odometry_config)
         stamps = np.asarray(stamps)
         if not keep:

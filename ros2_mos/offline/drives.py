@@ -119,6 +119,16 @@ class BagDrive:
             yield scan
 
 
+def given_poses(drive: Drive, why: str) -> np.ndarray:
+    """The drive's own poses, or a one-line DatasetError saying ``why`` they were asked for (a folder's says what is
+    wrong with its poses.txt)."""
+    if isinstance(drive, FolderDrive):
+        return drive.sequence.require_poses(why)
+    if drive.poses is None:
+        raise DatasetError(f"{drive.name}: {why} needs its poses.txt")
+    return drive.poses
+
+
 def open_drive(path: str | Path, topic: str | None = None) -> FolderDrive | BagDrive:
     """A sequence folder (with ``velodyne/``) or a bag folder/file (``metadata.yaml``, ``.mcap``, ``.db3``)."""
     path = Path(path)
