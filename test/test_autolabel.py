@@ -1507,3 +1507,46 @@ def test_deskew_auto_follows_the_drive_s_word_and_on_off_override_it(jam, tmp_pa
     result = runner.invoke(app, ["autolabel", str(folder), "--out", str(tmp_path / "out"), "--deskew", "yes"])
     assert result.exit_code != 0 and "unknown --deskew 'yes'" in result.output
     assert not (tmp_path / "out").exists()
+
+
+def test_pairs_registered_in_a_process_of_their_own_label_as_those_registered_here(jam, tmp_path):
+    """The traffic jam (30 scans) with its pairs registered in a process of their own and in this one: the same
+    labels; an interruption midway stops that process."""
+    from ros2_mos.offline import viewpoints
+    from ros2_mos.offline.viewpoints import PairRegistrationConfig
+
+    drive = FolderDrive(jam / "sequences" / "00")
+    labels = {}
+    for own_process_from in (1, 0):
+        config = AutolabelConfig(pairs=PairRegistrationConfig(own_process_from=own_process_from))
+        labeler = AutoLabeler(sensor_preset("vlp32c"), config)
+        work = tmp_path / f"work{own_process_from}"
+        work.mkdir()
+        result = labeler.label(drive, work)
+        labels[own_process_from] = [scan_labels(labeler, result, work, k, "semantickitti") for k in range(len(drive))]
+    assert sum(int(m.sum()) for m in labels[0]) > 1000
+    for there, here in zip(labels[1], labels[0]):
+        np.testing.assert_array_equal(there, here)
+
+    started = []
+
+    class Watched(viewpoints.PairRegistrationProcess):
+        def __init__(self, *args):
+            super().__init__(*args)
+            started.append(self._process)
+
+    def interrupt(stage: str, n: int) -> None:
+        if stage == "objects":
+            raise KeyboardInterrupt
+
+    original = viewpoints.PairRegistrationProcess
+    viewpoints.PairRegistrationProcess = Watched
+    try:
+        config = AutolabelConfig(pairs=PairRegistrationConfig(own_process_from=1))
+        labeler = AutoLabeler(sensor_preset("vlp32c"), config)
+        (tmp_path / "interrupted").mkdir()
+        with pytest.raises(KeyboardInterrupt):
+            labeler.label(drive, tmp_path / "interrupted", interrupt)
+    finally:
+        viewpoints.PairRegistrationProcess = original
+    assert len(started) == 1 and started[0].poll() is not None  # stopped, not left running

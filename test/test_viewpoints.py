@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from drive_scenes import SENSOR, Mover, write_drive
 
-from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.errors import ConfigError, WorkerError
 from ros2_mos.io.labels import instance_ids
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence, write_poses
 from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, scan_labels
 from ros2_mos.offline.drives import FolderDrive
-from ros2_mos.offline.viewpoints import PairRegistration, PairRegistrationConfig, pose_change
+from ros2_mos.offline.viewpoints import PairRegistration, PairRegistrationConfig, PairRegistrationProcess, pose_change
 
 #: A street with walls of different lengths on both sides and a few posts: every direction of motion is held.
 STREET = [(-40, 80, 12, 13), (-40, 30, -13, -12), (35, 80, -14, -13), (10, 11, 6, 7), (25, 26, -8, -7),
@@ -108,3 +108,86 @@ def test_a_parked_car_stays_static_though_the_drive_s_poses_drift_in_pitch_and_h
 
     assert moving_on_car(0) > 100  # the drifted poses alone: the parked car moves
     assert moving_on_car(5) == 0
+
+
+@pytest.fixture(scope="module")
+def drift_drive(tmp_path_factory) -> tuple[list[np.ndarray], np.ndarray]:
+    """Twelve scans of the street 1 m apart, their poses drifting in pitch and height as KISS-ICP's did."""
+    folder = write_drive(tmp_path_factory.mktemp("drift"), 12, lambda k: 1.0 * k, [], STREET)
+    poses = np.stack([p @ pitched(0.1 * k, 0.03 * k) for k, p in enumerate(FolderDrive(folder).poses)])
+    return [scan.points for scan in FolderDrive(folder)], poses
+
+
+OFFSETS = (-10, -5, -2, 2, 5, 10)
+
+
+def test_pairs_are_registered_as_the_scans_arrive(drift_drive):
+    """Scan a is registered against a + 5 and a + 10 once a + 10 has arrived (the last scan: against what there is),
+    with the relative poses the pairs registered one by one get."""
+    scans, poses = drift_drive
+    pairs = PairRegistration(PairRegistrationConfig(), OFFSETS, 12)
+    done = [pairs.add(k, scans[k], poses[k]) for k in range(12)]
+    assert done == [[]] * 10 + [[0], [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]]
+    with pytest.raises(ConfigError, match="out of order"):
+        pairs.add(3, scans[3], poses[3])
+    one_by_one = PairRegistration()
+    for a in (0, 6):
+        one_by_one.register(a, scans[a], poses[a], [(b, scans[b], poses[b]) for b in (a + 5, a + 10) if b < 12])
+    for a, b in ((0, 5), (0, 10), (6, 11)):
+        pairs.wait_for(a)
+        np.testing.assert_allclose(pairs.viewpoint_pose(a, poses[a], b), one_by_one.viewpoint_pose(a, poses[a], b),
+                                   atol=1e-9)
+    assert pairs.viewpoint_pose(6, poses[6], 16) is None and pairs.lead == 0
+    early = PairRegistration(PairRegistrationConfig(), OFFSETS, 12)
+    early.add(0, scans[0], poses[0])
+    with pytest.raises(ConfigError, match="have not all arrived"):
+        early.wait_for(0)
+
+
+def test_a_drive_of_own_process_from_scans_or_more_is_registered_in_a_process_that_gives_the_same_pairs(drift_drive):
+    scans, poses = drift_drive
+    config = PairRegistrationConfig(own_process_from=12, lead=3)
+    assert type(PairRegistration.for_drive(config, OFFSETS, 11)) is PairRegistration  # too short
+    assert type(PairRegistration.for_drive(config, (-2, 2), 12)) is PairRegistration  # no pair registered
+    assert type(PairRegistration.for_drive(PairRegistrationConfig(own_process_from=0), OFFSETS, 99)) is \
+        PairRegistration
+    here = PairRegistration(config, OFFSETS, 12)
+    there = PairRegistration.for_drive(config, OFFSETS, 12)
+    try:
+        assert isinstance(there, PairRegistrationProcess) and there.lead == 3
+        for k in range(12):
+            assert here.add(k, scans[k], poses[k]) is not None and there.add(k, scans[k], poses[k]) == []
+        for a in range(12):
+            there.wait_for(a)
+            for b in (a + 5, a + 10):
+                if b < 12:
+                    np.testing.assert_allclose(there.viewpoint_pose(a, poses[a], b),
+                                               here.viewpoint_pose(a, poses[a], b), atol=1e-6)
+        assert (there.registered, there.refused) == (here.registered, here.refused) and here.registered > 0
+    finally:
+        there.close()
+    assert there._process.poll() is not None
+
+
+def test_the_registration_process_s_failure_is_one_error_here(drift_drive):
+    scans, poses = drift_drive
+    config = PairRegistrationConfig(own_process_from=1)
+    broken = PairRegistration.for_drive(config, OFFSETS, 12)
+    try:
+        for k in range(12):  # one scan's points are no (N, 3) array: the process fails and says how
+            broken.add(k, scans[k][:, :2] if k == 11 else scans[k], poses[k])
+        with pytest.raises(WorkerError, match="pair registration failed as scan 11 arrived: RuntimeError"):
+            broken.wait_for(11)
+    finally:
+        broken.close()
+    killed = PairRegistration.for_drive(config, OFFSETS, 12)
+    try:
+        killed.add(0, scans[0], poses[0])
+        killed._process.kill()  # as the kernel's OOM killer would
+        killed.add(1, scans[1], poses[1])
+        with pytest.raises(WorkerError, match="ended without its result"):
+            killed.wait_for(0)
+    finally:
+        killed.close()
+    for pairs in (broken, killed):
+        assert pairs._process.poll() is not None

@@ -25,6 +25,10 @@ class ModelError(MosError):
     """A model file is missing, unreadable, or does not fit the configured setup."""
 
 
+class WorkerError(MosError):
+    """A process the library started ended without its result (killed, out of memory), or failed there."""
+
+
 class DatasetError(MosError):
     """A dataset folder or file is missing or does not follow the expected format."""
 

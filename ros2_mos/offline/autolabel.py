@@ -361,24 +361,24 @@ class AutoLabeler:
         online = self._online_model()
         skipped = 0
         blind = float("inf")
-        pairs = PairRegistration(self.config.pairs)
         offsets = (*self.config.near_offsets, *self.config.far_offsets)
+        pairs = PairRegistration.for_drive(self.config.pairs, offsets, n)
+        lead = pairs.lead
         try:
             for k in range(n):
-                while loaded < min(n, k + window + 1):  # the window ahead of scan k
+                while loaded < min(n, k + window + 1 + lead):  # the window ahead of scan k, and the pairs' lead
                     scan = next(scans)
                     cloud = scan.points if motions is None else deskew(scan.points, motions[scan.index], scan.phase)
                     seen[scan.index] = SeenScan(cloud, poses[scan.index], self.sensor)
                     pending.append((scan.index, cloud, scan.intensity))
+                    pairs.add(scan.index, cloud, poses[scan.index])
                     loaded += 1
                 for old in [i for i in seen if i < k - window]:
                     del seen[old]
                 index, points, intensity = pending.popleft()
                 assert index == k
                 pairs.forget_before(k - window)
-                ahead = {i: cloud for i, cloud, _ in pending}
-                pairs.register(k, points, poses[k], [(k + o, ahead[k + o], poses[k + o]) for o in offsets
-                                                     if o > 0 and pairs.wants(o) and k + o in ahead])
+                pairs.wait_for(k)
                 labelled = None
                 if online is not None:
                     try:
@@ -393,6 +393,7 @@ class AutoLabeler:
                 np.save(workdir / f"{k:06d}.npy", point_object)
                 progress("objects", 1)
         finally:
+            pairs.close()
             if online is not None:
                 online.close()
         return skipped, blind

@@ -11,17 +11,30 @@ k seen from j, and j from k). A refinement that moves the pose farther than ``ma
 degrees, or that has too few points to hold it, is refused: KISS-ICP's pose stays. Registering only the points on
 no object (so that a car alongside cannot pull one scan onto the other) was measured and is worse
 (``benchmarks/autolabel.md``, round 28).
+
+The pairs of a drive are registered as its scans arrive (:meth:`PairRegistration.add`): scan a against the later
+scans it is paired with, once the last of them has arrived. :class:`PairRegistrationProcess` does that in a process
+of its own, which runs ahead of the labelling while the labelling's Python runs on the other core (KISS-ICP's
+alignment holds the GIL, so a thread would not).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import pickle
+import queue
+import signal
+import subprocess
+import sys
+import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ros2_mos.apps.kitti_metrics import rotation_angles
-from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.errors import ConfigError, MosError, WorkerError
 from ros2_mos.offline.objects import check_numbers
 
 
@@ -44,13 +57,18 @@ class PairRegistrationConfig:
     #: points a voxel of the map keeps (as in KISS-ICP's own map; 5 is faster and lost on simulated jams:
     #: benchmarks/autolabel.md, round 28)
     map_points: int = 20
+    #: Drives of this many scans or more are registered in a process of their own (:class:`PairRegistrationProcess`),
+    #: up to ``lead`` scans ahead of the scan being labelled (0: never); shorter ones in the labelling's process,
+    #: where starting one (~0.6 s) costs more than it saves
+    own_process_from: int = 50
+    lead: int = 8
 
     def __post_init__(self) -> None:
-        for name in ("from_offset", "iterations", "min_points", "map_points"):
+        for name in ("from_offset", "iterations", "min_points", "map_points", "own_process_from", "lead"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool):
                 raise ConfigError(f"pair registration: {name} must be a whole number, got {value!r}")
-        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points"))
+        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points", "own_process_from", "lead"))
 
 
 def pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
@@ -60,9 +78,14 @@ def pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
 
 
 class PairRegistration:
-    """Refined relative poses of the scan pairs a sliding window asks for; built once per drive."""
+    """Refined relative poses of the scan pairs a sliding window asks for; built once per drive.
 
-    def __init__(self, config: PairRegistrationConfig = PairRegistrationConfig()) -> None:
+    ``offsets``: the scan offsets the window looks at (the pairs a, a + o for each positive one that :meth:`wants`
+    are registered as the scans arrive, :meth:`add`); ``scans``: the drive's length.
+    """
+
+    def __init__(self, config: PairRegistrationConfig = PairRegistrationConfig(), offsets: tuple[int, ...] = (),
+                 scans: int = 0) -> None:
         from kiss_icp.registration import Registration
 
         self.config = config
@@ -73,23 +96,66 @@ class PairRegistration:
         self._thinned: dict[int, np.ndarray] = {}  # scan -> its points thinned to one per voxel
         self.refused = 0
         self.registered = 0
+        self._later = sorted({o for o in offsets if o > 0 and self.wants(o)})  # the offsets of a's later scans
+        self._scans = scans
+        self._arrived: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # scan -> (points, pose) until registered
+        self._next = 0  # the next scan to register against its later ones
 
     def wants(self, offset: int) -> bool:
         """Whether a pair this many scans apart is registered."""
         return self.config.from_offset > 0 and abs(offset) >= self.config.from_offset
 
+    @classmethod
+    def for_drive(cls, config: PairRegistrationConfig, offsets: tuple[int, ...], scans: int) -> "PairRegistration":
+        """The registration of a drive of ``scans`` scans: in a process of its own where the config says so for
+        a drive that long and some pair is registered at all, else here."""
+        here = cls(config, offsets, scans)
+        if here._later and 0 < config.own_process_from <= scans:
+            return PairRegistrationProcess(config, offsets, scans)
+        return here
+
+    @property
+    def lead(self) -> int:
+        """Scans the caller may add ahead of the one it waits for (:meth:`wait_for`)."""
+        return 0
+
+    def add(self, index: int, points: np.ndarray, pose: np.ndarray) -> list[int]:
+        """Scan ``index`` (the next of the drive: sensor-frame (N, 3) points, KISS-ICP world pose) has arrived;
+        register each earlier scan whose later scans have all arrived now. Returns those scans."""
+        if index != self._next + len(self._arrived):
+            raise ConfigError(f"pair registration: scan {index} arrived out of order")
+        self._arrived[index] = (points, pose)
+        reach = self._later[-1] if self._later else 0
+        done = []
+        while self._next < self._scans and (self._next + reach <= index or index == self._scans - 1):
+            a = self._next
+            points_a, pose_a = self._arrived.pop(a)
+            self.register(a, points_a, pose_a, [(a + o, *self._arrived[a + o]) for o in self._later
+                                                if a + o < self._scans])
+            done.append(a)
+            self._next += 1
+        return done
+
+    def wait_for(self, k: int) -> None:
+        """Return once the pairs of scan ``k`` with its later scans are known (here: :meth:`add` registered them)."""
+        if k >= self._next:
+            raise ConfigError(f"pair registration: scan {k}'s later scans have not all arrived")
+
+    def close(self) -> None:
+        """Nothing to stop here (:class:`PairRegistrationProcess` stops its process)."""
+
     def register(self, a: int, points_a: np.ndarray, pose_a: np.ndarray,
-                 later: list[tuple[int, np.ndarray, np.ndarray]]) -> None:
+                 later: list[tuple[int, np.ndarray, np.ndarray]]) -> dict[tuple[int, int], np.ndarray]:
         """Register each later scan (index, sensor-frame (N, 3) points, KISS-ICP world pose) against scan ``a``, in
         one voxel map of scan a's points; keep each pair's relative pose (KISS-ICP's where the refinement is
-        refused)."""
+        refused) and return them."""
         from kiss_icp.mapping import VoxelHashMap
         from kiss_icp.voxelization import voxel_down_sample
 
         cfg = self.config
         self._thinned.pop(a, None)  # scans are registered in order: scan a is never a later scan again
         if not later:
-            return
+            return {}
         voxel_map = None
         if len(points_a) >= cfg.min_points:
             voxel_map = VoxelHashMap(voxel_size=cfg.voxel, max_distance=1e9, max_points_per_voxel=cfg.map_points)
@@ -112,6 +178,7 @@ class PairRegistration:
             self.registered += relative is not start
             self.refused += relative is start
             self._relative[(a, b)] = relative
+        return {(a, b): self._relative[(a, b)] for b, _, _ in later}
 
     def viewpoint_pose(self, k: int, pose_k: np.ndarray, j: int) -> np.ndarray | None:
         """Scan j's world pose as a viewpoint of scan k's points (scan k at ``pose_k``), or None where the pair was
@@ -126,3 +193,121 @@ class PairRegistration:
         """Drop the pairs whose first scan is before ``k`` (out of the window)."""
         for pair in [p for p in self._relative if p[0] < k]:
             del self._relative[pair]
+
+
+class PairRegistrationProcess(PairRegistration):
+    """:class:`PairRegistration` in a process of its own: :meth:`add` hands the scan over and returns at once,
+    :meth:`wait_for` collects the pairs registered meanwhile. The process runs up to as many scans ahead as the
+    caller adds before waiting (``PairRegistrationConfig.lead``); an error there is raised here, in one line.
+
+    The process is a fresh interpreter (``python -c``, the parent's ``sys.path``) fed pickled scans on its stdin and
+    answering on a pipe of its own: not :mod:`multiprocessing`, whose children import the caller's main script
+    again (a user's script without a ``__main__`` guard would label its drive twice)."""
+
+    def __init__(self, config: PairRegistrationConfig = PairRegistrationConfig(), offsets: tuple[int, ...] = (),
+                 scans: int = 0) -> None:
+        super().__init__(config, offsets, scans)
+        answers, answer_here = os.pipe()
+        environment = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-c", "from ros2_mos.offline.viewpoints import serve_pairs; serve_pairs()",
+                 str(answer_here)], stdin=subprocess.PIPE, pass_fds=(answer_here,), env=environment)
+        finally:
+            os.close(answer_here)
+        self._answers = os.fdopen(answers, "rb")
+        self._outbox: queue.Queue[Any] = queue.Queue()  # written by a thread: add() never waits for the process
+        self._feeder = threading.Thread(target=self._feed, name="pair registration feeder", daemon=True)
+        self._feeder.start()
+        self._outbox.put((config, offsets, scans))
+        self._added = 0
+        self._known = 0  # scans whose pairs have come back
+
+    @property
+    def lead(self) -> int:
+        return self.config.lead
+
+    def add(self, index: int, points: np.ndarray, pose: np.ndarray) -> list[int]:
+        if index != self._added:
+            raise ConfigError(f"pair registration: scan {index} arrived out of order")
+        self._added += 1
+        self._outbox.put((index, np.asarray(points), np.asarray(pose)))
+        return []
+
+    def wait_for(self, k: int) -> None:
+        while self._known <= k:
+            if k >= self._added:
+                raise ConfigError(f"pair registration: scan {k}'s later scans have not all arrived")
+            try:
+                message = pickle.load(self._answers)
+            except (EOFError, pickle.UnpicklingError):
+                raise WorkerError(f"the pair registration process ended without its result (exit code "
+                                  f"{self._process.wait()})") from None
+            if isinstance(message, BaseException):
+                raise message
+            done, relative, self.registered, self.refused = message
+            self._relative.update(relative)
+            self._known = done + 1
+
+    def close(self) -> None:
+        """Stop the process: at once where its pairs are not all back (an error, Ctrl-C: they are not needed)."""
+        if self._known < self._scans:
+            self._process.kill()
+        self._outbox.put(None)
+        self._feeder.join(CLOSE_WAIT_S)
+        try:
+            self._process.wait(CLOSE_WAIT_S)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+        self._answers.close()
+
+    def _feed(self) -> None:
+        """The feeder thread: the scans to the process's stdin, in order; closes it at the end."""
+        stdin = self._process.stdin
+        while (message := self._outbox.get()) is not None:
+            try:
+                pickle.dump(message, stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                stdin.flush()
+            except OSError:  # the process ended (a broken pipe): wait_for says so
+                break
+        try:
+            stdin.close()
+        except OSError:
+            pass
+
+
+#: Seconds a stopping registration process may take.
+CLOSE_WAIT_S = 5.0
+
+
+def serve_pairs() -> None:
+    """The registration process (:class:`PairRegistrationProcess`): (config, offsets, scans), then scans, on stdin;
+    (scan registered, its pairs, registered, refused) out on the pipe its one argument names; an error out as the
+    MosError to raise (others as a WorkerError naming them), and the process ends."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops this process
+    answers = os.fdopen(int(sys.argv[1]), "wb")
+    requests = sys.stdin.buffer
+
+    def answer(message: Any) -> None:
+        pickle.dump(message, answers, protocol=pickle.HIGHEST_PROTOCOL)
+        answers.flush()
+
+    index = None
+    try:
+        config, offsets, scans = pickle.load(requests)
+        pairs = PairRegistration(config, offsets, scans)
+        while True:
+            try:
+                index, points, pose = pickle.load(requests)
+            except EOFError:
+                return
+            for a in pairs.add(index, points, pose):
+                relative = {pair: p for pair, p in pairs._relative.items() if pair[0] == a}
+                pairs.forget_before(a + 1)
+                answer((a, relative, pairs.registered, pairs.refused))
+    except MosError as exc:
+        answer(exc)
+    except Exception as exc:  # noqa: BLE001 - the parent raises it, in one line
+        where = "" if index is None else f" as scan {index} arrived"
+        answer(WorkerError(f"pair registration failed{where}: {type(exc).__name__}{f': {exc}' if str(exc) else ''}"))
