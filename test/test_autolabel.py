@@ -4,6 +4,7 @@ its command end to end on a simulated drive."""
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import shutil
 from pathlib import Path
 
@@ -1509,44 +1510,45 @@ def test_deskew_auto_follows_the_drive_s_word_and_on_off_override_it(jam, tmp_pa
     assert not (tmp_path / "out").exists()
 
 
-def test_pairs_registered_in_a_process_of_their_own_label_as_those_registered_here(jam, tmp_path):
-    """The traffic jam (30 scans) with its pairs registered in a process of their own and in this one: the same
-    labels; an interruption midway stops that process."""
-    from ros2_mos.offline import viewpoints
-    from ros2_mos.offline.viewpoints import PairRegistrationConfig
+def test_pairs_and_cue_in_processes_of_their_own_label_as_in_this_one(jam, tmp_path):
+    """The traffic jam (30 scans) with its scan pairs registered and its online cue computed in processes of their
+    own and in this one: the same labels; an interruption midway stops both processes."""
+    from ros2_mos.core import worker
 
     drive = FolderDrive(jam / "sequences" / "00")
     labels = {}
-    for own_process_from in (1, 0):
-        config = AutolabelConfig(pairs=PairRegistrationConfig(own_process_from=own_process_from))
-        labeler = AutoLabeler(sensor_preset("vlp32c"), config)
-        work = tmp_path / f"work{own_process_from}"
+    for processes_from in (1, 0):
+        labeler = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(processes_from=processes_from))
+        work = tmp_path / f"work{processes_from}"
         work.mkdir()
         result = labeler.label(drive, work)
-        labels[own_process_from] = [scan_labels(labeler, result, work, k, "semantickitti") for k in range(len(drive))]
+        labels[processes_from] = [scan_labels(labeler, result, work, k, "semantickitti") for k in range(len(drive))]
+        assert result.cue_model == "vlp32c.onnx"
     assert sum(int(m.sum()) for m in labels[0]) > 1000
     for there, here in zip(labels[1], labels[0]):
         np.testing.assert_array_equal(there, here)
 
     started = []
 
-    class Watched(viewpoints.PairRegistrationProcess):
+    class Watched(worker.Worker):
         def __init__(self, *args):
             super().__init__(*args)
-            started.append(self._process)
+            started.append(self)
 
     def interrupt(stage: str, n: int) -> None:
         if stage == "objects":
             raise KeyboardInterrupt
 
-    original = viewpoints.PairRegistrationProcess
-    viewpoints.PairRegistrationProcess = Watched
+    original = worker.Worker
+    for module in ("viewpoints", "cue"):
+        setattr(importlib.import_module(f"ros2_mos.offline.{module}"), "Worker", Watched)
     try:
-        config = AutolabelConfig(pairs=PairRegistrationConfig(own_process_from=1))
-        labeler = AutoLabeler(sensor_preset("vlp32c"), config)
+        labeler = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(processes_from=1))
         (tmp_path / "interrupted").mkdir()
         with pytest.raises(KeyboardInterrupt):
             labeler.label(drive, tmp_path / "interrupted", interrupt)
     finally:
-        viewpoints.PairRegistrationProcess = original
-    assert len(started) == 1 and started[0].poll() is not None  # stopped, not left running
+        for module in ("viewpoints", "cue"):
+            setattr(importlib.import_module(f"ros2_mos.offline.{module}"), "Worker", original)
+    assert sorted(w.name for w in started) == ["online cue", "pair registration"]
+    assert all(w.returncode is not None for w in started)  # stopped, not left running

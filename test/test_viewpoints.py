@@ -137,24 +137,22 @@ def test_pairs_are_registered_as_the_scans_arrive(drift_drive):
         pairs.wait_for(a)
         np.testing.assert_allclose(pairs.viewpoint_pose(a, poses[a], b), one_by_one.viewpoint_pose(a, poses[a], b),
                                    atol=1e-9)
-    assert pairs.viewpoint_pose(6, poses[6], 16) is None and pairs.lead == 0
+    assert pairs.viewpoint_pose(6, poses[6], 16) is None
     early = PairRegistration(PairRegistrationConfig(), OFFSETS, 12)
     early.add(0, scans[0], poses[0])
     with pytest.raises(ConfigError, match="have not all arrived"):
         early.wait_for(0)
 
 
-def test_a_drive_of_own_process_from_scans_or_more_is_registered_in_a_process_that_gives_the_same_pairs(drift_drive):
+def test_pairs_registered_in_a_process_of_their_own_are_the_pairs_registered_here(drift_drive):
     scans, poses = drift_drive
-    config = PairRegistrationConfig(own_process_from=12, lead=3)
-    assert type(PairRegistration.for_drive(config, OFFSETS, 11)) is PairRegistration  # too short
-    assert type(PairRegistration.for_drive(config, (-2, 2), 12)) is PairRegistration  # no pair registered
-    assert type(PairRegistration.for_drive(PairRegistrationConfig(own_process_from=0), OFFSETS, 99)) is \
-        PairRegistration
+    config = PairRegistrationConfig()
+    assert type(PairRegistration.for_drive(config, OFFSETS, 12, own_process=False)) is PairRegistration
+    assert type(PairRegistration.for_drive(config, (-2, 2), 12, own_process=True)) is PairRegistration  # no pairs
     here = PairRegistration(config, OFFSETS, 12)
-    there = PairRegistration.for_drive(config, OFFSETS, 12)
+    there = PairRegistration.for_drive(config, OFFSETS, 12, own_process=True)
     try:
-        assert isinstance(there, PairRegistrationProcess) and there.lead == 3
+        assert isinstance(there, PairRegistrationProcess)
         for k in range(12):
             assert here.add(k, scans[k], poses[k]) is not None and there.add(k, scans[k], poses[k]) == []
         for a in range(12):
@@ -166,28 +164,28 @@ def test_a_drive_of_own_process_from_scans_or_more_is_registered_in_a_process_th
         assert (there.registered, there.refused) == (here.registered, here.refused) and here.registered > 0
     finally:
         there.close()
-    assert there._process.poll() is not None
+    assert there._worker.returncode == 0
 
 
 def test_the_registration_process_s_failure_is_one_error_here(drift_drive):
     scans, poses = drift_drive
-    config = PairRegistrationConfig(own_process_from=1)
-    broken = PairRegistration.for_drive(config, OFFSETS, 12)
+    config = PairRegistrationConfig()
+    broken = PairRegistration.for_drive(config, OFFSETS, 12, own_process=True)
     try:
         for k in range(12):  # one scan's points are no (N, 3) array: the process fails and says how
             broken.add(k, scans[k][:, :2] if k == 11 else scans[k], poses[k])
-        with pytest.raises(WorkerError, match="pair registration failed as scan 11 arrived: RuntimeError"):
+        with pytest.raises(WorkerError, match="pair registration failed at request 11: RuntimeError"):
             broken.wait_for(11)
     finally:
         broken.close()
-    killed = PairRegistration.for_drive(config, OFFSETS, 12)
+    killed = PairRegistration.for_drive(config, OFFSETS, 12, own_process=True)
     try:
         killed.add(0, scans[0], poses[0])
-        killed._process.kill()  # as the kernel's OOM killer would
+        killed._worker._process.kill()  # as the kernel's OOM killer would
         killed.add(1, scans[1], poses[1])
         with pytest.raises(WorkerError, match="ended without its result"):
             killed.wait_for(0)
     finally:
         killed.close()
     for pairs in (broken, killed):
-        assert pairs._process.poll() is not None
+        assert pairs._worker.returncode is not None

@@ -32,19 +32,20 @@ import tempfile
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
 from ros2_mos.core.config import OdometryConfig, SensorConfig
 from ros2_mos.core.deskew import check_deskew_mode, deskew, deskew_wanted, drive_motions
-from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
+from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.core.residuals import transform_columns
 from ros2_mos.core.sensor_check import mismatch_message
 from ros2_mos.io.conventions import SEMANTICKITTI, check_convention, write_convention_file
 from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.io.sweep import write_sweep_file
+from ros2_mos.offline.cue import OnlineCue, OnlineCueProcess
 from ros2_mos.offline.drives import Drive, given_poses
 from ros2_mos.offline.objects import (
     ObjectConfig,
@@ -68,9 +69,6 @@ from ros2_mos.offline.tracks import (
 from ros2_mos.offline.trajectory import farther_pass, starts_from_rest
 from ros2_mos.offline.viewpoints import PairRegistration, PairRegistrationConfig
 from ros2_mos.offline.visibility import SeenScan
-
-if TYPE_CHECKING:
-    from ros2_mos.core.pipeline import MosPipeline
 
 #: Fewer scans give no future or past to compare with.
 MIN_SCANS = 2
@@ -158,6 +156,12 @@ class AutolabelConfig:
     #: is bent by it the other way (one simulated drive 93.3 -> 10.3): so never on without the drive's or the
     #: user's word (benchmarks/autolabel.md, round 39)
     deskew: str = "auto"
+    #: Drives of this many scans or more have their scan pairs registered (:mod:`~ros2_mos.offline.viewpoints`) and
+    #: the online cue computed (:mod:`~ros2_mos.offline.cue`) each in a process of its own, up to ``process_lead``
+    #: scans ahead of the scan being labelled, while this one finds objects (0: never); shorter drives in this
+    #: process, where starting one (~0.6 s) costs more than it saves
+    processes_from: int = 50
+    process_lead: int = 8
 
     def __post_init__(self) -> None:
         offsets = (*self.near_offsets, *self.far_offsets)
@@ -170,8 +174,13 @@ class AutolabelConfig:
         if self.instant_motion not in INSTANT_MOTION:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
+        for name in ("processes_from", "process_lead"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise ConfigError(f"autolabel: {name} must be a whole number, got {value!r}")
         check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin", "split_voxel", "cue_attach",
-                                                  "odometry_margin", "odometry_margin_share", "instant_cue_reshape"),
+                                                  "odometry_margin", "odometry_margin_share", "instant_cue_reshape",
+                                                  "processes_from", "process_lead"),
                       at_most_one=("instant_seen_through",))
 
     @property
@@ -354,37 +363,37 @@ class AutoLabeler:
         window = self.config.window
         n = len(poses)
         seen: dict[int, SeenScan] = {}
-        pending: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        pending: deque[tuple[int, np.ndarray]] = deque()
         last_stamp: float | None = None
         scans = iter(drive)
         loaded = 0
-        online = self._online_model()
-        skipped = 0
         blind = float("inf")
         offsets = (*self.config.near_offsets, *self.config.far_offsets)
-        pairs = PairRegistration.for_drive(self.config.pairs, offsets, n)
-        lead = pairs.lead
+        own = 0 < self.config.processes_from <= n
+        lead = self.config.process_lead if own else 0
+        pairs = PairRegistration.for_drive(self.config.pairs, offsets, n, own)
+        online = None
         try:
+            if self.cue_model is not None:
+                online = (OnlineCueProcess if own else OnlineCue)(self.cue_model, self.sensor)
             for k in range(n):
-                while loaded < min(n, k + window + 1 + lead):  # the window ahead of scan k, and the pairs' lead
+                while loaded < min(n, k + window + 1 + lead):  # the window ahead of scan k, and the processes' lead
                     scan = next(scans)
-                    cloud = scan.points if motions is None else deskew(scan.points, motions[scan.index], scan.phase)
-                    seen[scan.index] = SeenScan(cloud, poses[scan.index], self.sensor)
-                    pending.append((scan.index, cloud, scan.intensity))
-                    pairs.add(scan.index, cloud, poses[scan.index])
+                    i = scan.index
+                    cloud = scan.points if motions is None else deskew(scan.points, motions[i], scan.phase)
+                    seen[i] = SeenScan(cloud, poses[i], self.sensor)
+                    pending.append((i, cloud))
+                    pairs.add(i, cloud, poses[i])
+                    if online is not None:
+                        online.add(i, cloud, scan.intensity, float(stamps[i]), poses[i])
                     loaded += 1
                 for old in [i for i in seen if i < k - window]:
                     del seen[old]
-                index, points, intensity = pending.popleft()
+                index, points = pending.popleft()
                 assert index == k
                 pairs.forget_before(k - window)
                 pairs.wait_for(k)
-                labelled = None
-                if online is not None:
-                    try:
-                        labelled = online.process(points, intensity, float(stamps[k]), pose=poses[k]).labels
-                    except ScanError:  # a scan the online model refuses gets no cue; visibility still judges it
-                        skipped += 1
+                labelled = online.labels(k) if online is not None else None
                 point_object, observations, nearest = self._observe(k, points, poses[k], vehicle, seen, pairs,
                                                                     labelled)
                 blind = min(blind, nearest)
@@ -396,16 +405,7 @@ class AutoLabeler:
             pairs.close()
             if online is not None:
                 online.close()
-        return skipped, blind
-
-    def _online_model(self) -> "MosPipeline | None":
-        """The online pipeline for the cue (with autolabel's poses: no odometry of its own), or None."""
-        if self.cue_model is None:
-            return None
-        from ros2_mos.core.config import MosConfig
-        from ros2_mos.core.pipeline import MosPipeline
-
-        return MosPipeline(MosConfig(model=str(self.cue_model), sensor=self.sensor))
+        return online.skipped if online is not None else 0, blind
 
     def _observe(self, k: int, points: np.ndarray, pose: np.ndarray, vehicle: np.ndarray, seen: dict[int, SeenScan],
                  pairs: PairRegistration,

@@ -21,20 +21,14 @@ alignment holds the GIL, so a thread would not).
 from __future__ import annotations
 
 import math
-import os
-import pickle
-import queue
-import signal
-import subprocess
-import sys
-import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from ros2_mos.apps.kitti_metrics import rotation_angles
-from ros2_mos.core.errors import ConfigError, MosError, WorkerError
+from ros2_mos.core.errors import ConfigError
+from ros2_mos.core.worker import Worker
 from ros2_mos.offline.objects import check_numbers
 
 
@@ -57,18 +51,13 @@ class PairRegistrationConfig:
     #: points a voxel of the map keeps (as in KISS-ICP's own map; 5 is faster and lost on simulated jams:
     #: benchmarks/autolabel.md, round 28)
     map_points: int = 20
-    #: Drives of this many scans or more are registered in a process of their own (:class:`PairRegistrationProcess`),
-    #: up to ``lead`` scans ahead of the scan being labelled (0: never); shorter ones in the labelling's process,
-    #: where starting one (~0.6 s) costs more than it saves
-    own_process_from: int = 50
-    lead: int = 8
 
     def __post_init__(self) -> None:
-        for name in ("from_offset", "iterations", "min_points", "map_points", "own_process_from", "lead"):
+        for name in ("from_offset", "iterations", "min_points", "map_points"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool):
                 raise ConfigError(f"pair registration: {name} must be a whole number, got {value!r}")
-        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points", "own_process_from", "lead"))
+        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points"))
 
 
 def pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
@@ -106,18 +95,12 @@ class PairRegistration:
         return self.config.from_offset > 0 and abs(offset) >= self.config.from_offset
 
     @classmethod
-    def for_drive(cls, config: PairRegistrationConfig, offsets: tuple[int, ...], scans: int) -> "PairRegistration":
-        """The registration of a drive of ``scans`` scans: in a process of its own where the config says so for
-        a drive that long and some pair is registered at all, else here."""
+    def for_drive(cls, config: PairRegistrationConfig, offsets: tuple[int, ...], scans: int,
+                  own_process: bool) -> "PairRegistration":
+        """The registration of a drive of ``scans`` scans: with ``own_process`` in a process of its own
+        (:class:`PairRegistrationProcess`) where some pair is registered at all, else here."""
         here = cls(config, offsets, scans)
-        if here._later and 0 < config.own_process_from <= scans:
-            return PairRegistrationProcess(config, offsets, scans)
-        return here
-
-    @property
-    def lead(self) -> int:
-        """Scans the caller may add ahead of the one it waits for (:meth:`wait_for`)."""
-        return 0
+        return PairRegistrationProcess(config, offsets, scans) if own_process and here._later else here
 
     def add(self, index: int, points: np.ndarray, pose: np.ndarray) -> list[int]:
         """Scan ``index`` (the next of the drive: sensor-frame (N, 3) points, KISS-ICP world pose) has arrived;
@@ -196,118 +179,49 @@ class PairRegistration:
 
 
 class PairRegistrationProcess(PairRegistration):
-    """:class:`PairRegistration` in a process of its own: :meth:`add` hands the scan over and returns at once,
-    :meth:`wait_for` collects the pairs registered meanwhile. The process runs up to as many scans ahead as the
-    caller adds before waiting (``PairRegistrationConfig.lead``); an error there is raised here, in one line.
-
-    The process is a fresh interpreter (``python -c``, the parent's ``sys.path``) fed pickled scans on its stdin and
-    answering on a pipe of its own: not :mod:`multiprocessing`, whose children import the caller's main script
-    again (a user's script without a ``__main__`` guard would label its drive twice)."""
+    """:class:`PairRegistration` in a process of its own (:class:`~ros2_mos.core.worker.Worker`): :meth:`add` hands
+    the scan over and returns at once, :meth:`wait_for` collects the pairs registered meanwhile. The process runs up
+    to as many scans ahead as the caller adds before waiting; an error there is raised here, in one line."""
 
     def __init__(self, config: PairRegistrationConfig = PairRegistrationConfig(), offsets: tuple[int, ...] = (),
                  scans: int = 0) -> None:
         super().__init__(config, offsets, scans)
-        answers, answer_here = os.pipe()
-        environment = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
-        try:
-            self._process = subprocess.Popen(
-                [sys.executable, "-c", "from ros2_mos.offline.viewpoints import serve_pairs; serve_pairs()",
-                 str(answer_here)], stdin=subprocess.PIPE, pass_fds=(answer_here,), env=environment)
-        finally:
-            os.close(answer_here)
-        self._answers = os.fdopen(answers, "rb")
-        self._outbox: queue.Queue[Any] = queue.Queue()  # written by a thread: add() never waits for the process
-        self._feeder = threading.Thread(target=self._feed, name="pair registration feeder", daemon=True)
-        self._feeder.start()
-        self._outbox.put((config, offsets, scans))
+        self._worker = Worker("ros2_mos.offline.viewpoints:pair_server", (config, offsets, scans),
+                              "pair registration")
         self._added = 0
         self._known = 0  # scans whose pairs have come back
-
-    @property
-    def lead(self) -> int:
-        return self.config.lead
 
     def add(self, index: int, points: np.ndarray, pose: np.ndarray) -> list[int]:
         if index != self._added:
             raise ConfigError(f"pair registration: scan {index} arrived out of order")
         self._added += 1
-        self._outbox.put((index, np.asarray(points), np.asarray(pose)))
+        self._worker.send((index, np.asarray(points), np.asarray(pose)))
         return []
 
     def wait_for(self, k: int) -> None:
         while self._known <= k:
             if k >= self._added:
                 raise ConfigError(f"pair registration: scan {k}'s later scans have not all arrived")
-            try:
-                message = pickle.load(self._answers)
-            except (EOFError, pickle.UnpicklingError):
-                raise WorkerError(f"the pair registration process ended without its result (exit code "
-                                  f"{self._process.wait()})") from None
-            if isinstance(message, BaseException):
-                raise message
-            done, relative, self.registered, self.refused = message
+            done, relative, self.registered, self.refused = self._worker.receive()
             self._relative.update(relative)
             self._known = done + 1
 
     def close(self) -> None:
         """Stop the process: at once where its pairs are not all back (an error, Ctrl-C: they are not needed)."""
-        if self._known < self._scans:
-            self._process.kill()
-        self._outbox.put(None)
-        self._feeder.join(CLOSE_WAIT_S)
-        try:
-            self._process.wait(CLOSE_WAIT_S)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
-        self._answers.close()
-
-    def _feed(self) -> None:
-        """The feeder thread: the scans to the process's stdin, in order; closes it at the end."""
-        stdin = self._process.stdin
-        while (message := self._outbox.get()) is not None:
-            try:
-                pickle.dump(message, stdin, protocol=pickle.HIGHEST_PROTOCOL)
-                stdin.flush()
-            except OSError:  # the process ended (a broken pipe): wait_for says so
-                break
-        try:
-            stdin.close()
-        except OSError:
-            pass
+        self._worker.close(kill=self._known < self._scans)
 
 
-#: Seconds a stopping registration process may take.
-CLOSE_WAIT_S = 5.0
+def pair_server(setup: tuple[PairRegistrationConfig, tuple[int, ...], int]) -> Callable[[Any], list[Any]]:
+    """The registration process's handler (:class:`~ros2_mos.core.worker.Worker`): a scan (index, points, pose) in,
+    (scan registered, its pairs, registered, refused) out for each scan it let be registered."""
+    pairs = PairRegistration(*setup)
 
+    def handle(request: tuple[int, np.ndarray, np.ndarray]) -> list[Any]:
+        answers = []
+        for a in pairs.add(*request):
+            relative = {pair: p for pair, p in pairs._relative.items() if pair[0] == a}
+            pairs.forget_before(a + 1)
+            answers.append((a, relative, pairs.registered, pairs.refused))
+        return answers
 
-def serve_pairs() -> None:
-    """The registration process (:class:`PairRegistrationProcess`): (config, offsets, scans), then scans, on stdin;
-    (scan registered, its pairs, registered, refused) out on the pipe its one argument names; an error out as the
-    MosError to raise (others as a WorkerError naming them), and the process ends."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops this process
-    answers = os.fdopen(int(sys.argv[1]), "wb")
-    requests = sys.stdin.buffer
-
-    def answer(message: Any) -> None:
-        pickle.dump(message, answers, protocol=pickle.HIGHEST_PROTOCOL)
-        answers.flush()
-
-    index = None
-    try:
-        config, offsets, scans = pickle.load(requests)
-        pairs = PairRegistration(config, offsets, scans)
-        while True:
-            try:
-                index, points, pose = pickle.load(requests)
-            except EOFError:
-                return
-            for a in pairs.add(index, points, pose):
-                relative = {pair: p for pair, p in pairs._relative.items() if pair[0] == a}
-                pairs.forget_before(a + 1)
-                answer((a, relative, pairs.registered, pairs.refused))
-    except MosError as exc:
-        answer(exc)
-    except Exception as exc:  # noqa: BLE001 - the parent raises it, in one line
-        where = "" if index is None else f" as scan {index} arrived"
-        answer(WorkerError(f"pair registration failed{where}: {type(exc).__name__}{f': {exc}' if str(exc) else ''}"))
+    return handle
