@@ -266,13 +266,19 @@ class AutoLabeler:
         if n < MIN_SCANS:
             raise DatasetError(f"{drive.name}: {n} scan(s); autolabel needs at least {MIN_SCANS} (past and future)")
         vehicle = VehicleReturns(self.config.objects)
-        poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
         tracker = Tracker(self.config.tracks)
-        motions = None
-        if self.deskews(drive):
-            motions = drive_motions(poses, stamps)
-        cue_skipped, blind = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir,
-                                                        progress, motions)
+        # started first, so that the processes' start (~1 s) overlaps the poses
+        pairs, online = self._helpers(n)
+        try:
+            poses, stamps, sizes, followed = self._poses(drive, vehicle, workdir, progress)
+            motions = drive_motions(poses, stamps) if self.deskews(drive) else None
+            blind = self._objects_and_evidence(drive, poses, stamps, vehicle.cells(), tracker, workdir, progress,
+                                               pairs, online, motions)
+        finally:
+            pairs.close()
+            if online is not None:
+                online.close()
+        cue_skipped = online.skipped if online is not None else 0
         tracker.cut_jumps()
         movers = tracker.movers(cue=self.cue_model is not None)
         movers.update(tracker.handovers(movers))
@@ -354,12 +360,26 @@ class AutoLabeler:
         poses = _restart((np.load(path) for path in paths), np.asarray(poses), config)
         return poses[::-1].copy()
 
+    def _helpers(self, n: int) -> tuple[PairRegistration, OnlineCue | None]:
+        """The scan pairs' registration and the online cue (None without one) for a drive of ``n`` scans: each in a
+        process of its own from ``processes_from`` scans on."""
+        own = 0 < self.config.processes_from <= n
+        offsets = (*self.config.near_offsets, *self.config.far_offsets)
+        pairs = PairRegistration.for_drive(self.config.pairs, offsets, n, own)
+        if self.cue_model is None:
+            return pairs, None
+        try:
+            return pairs, (OnlineCueProcess if own else OnlineCue)(self.cue_model, self.sensor)
+        except BaseException:
+            pairs.close()
+            raise
+
     def _objects_and_evidence(self, drive: Drive, poses: np.ndarray, stamps: np.ndarray, vehicle: np.ndarray,
-                              tracker: Tracker, workdir: Path, progress: ProgressFn,
-                              motions: np.ndarray | None = None) -> tuple[int, float]:
+                              tracker: Tracker, workdir: Path, progress: ProgressFn, pairs: PairRegistration,
+                              online: OnlineCue | None, motions: np.ndarray | None = None) -> float:
         """Steps 2 and 3 over the drive, each scan deskewed by its ``motions`` row where given
-        (:func:`~ros2_mos.core.deskew.scan_motions`); returns how many scans the online cue's model refused, and the
-        drive's blind radius (:func:`blind_radius`)."""
+        (:func:`~ros2_mos.core.deskew.scan_motions`), its pairs registered by ``pairs`` and its cue from ``online``
+        (:meth:`_helpers`); returns the drive's blind radius (:func:`blind_radius`)."""
         window = self.config.window
         n = len(poses)
         seen: dict[int, SeenScan] = {}
@@ -368,44 +388,33 @@ class AutoLabeler:
         scans = iter(drive)
         loaded = 0
         blind = float("inf")
-        offsets = (*self.config.near_offsets, *self.config.far_offsets)
-        own = 0 < self.config.processes_from <= n
-        lead = self.config.process_lead if own else 0
-        pairs = PairRegistration.for_drive(self.config.pairs, offsets, n, own)
-        online = None
-        try:
-            if self.cue_model is not None:
-                online = (OnlineCueProcess if own else OnlineCue)(self.cue_model, self.sensor)
-            for k in range(n):
-                while loaded < min(n, k + window + 1 + lead):  # the window ahead of scan k, and the processes' lead
-                    scan = next(scans)
-                    i = scan.index
-                    cloud = scan.points if motions is None else deskew(scan.points, motions[i], scan.phase)
-                    seen[i] = SeenScan(cloud, poses[i], self.sensor)
-                    pending.append((i, cloud))
-                    pairs.add(i, cloud, poses[i])
-                    if online is not None:
-                        online.add(i, cloud, scan.intensity, float(stamps[i]), poses[i])
-                    loaded += 1
-                for old in [i for i in seen if i < k - window]:
-                    del seen[old]
-                index, points = pending.popleft()
-                assert index == k
-                pairs.forget_before(k - window)
-                pairs.wait_for(k)
-                labelled = online.labels(k) if online is not None else None
-                point_object, observations, nearest = self._observe(k, points, poses[k], vehicle, seen, pairs,
-                                                                    labelled)
-                blind = min(blind, nearest)
-                tracker.add_scan(k, float(stamps[k]), last_stamp, observations)
-                last_stamp = float(stamps[k])
-                np.save(workdir / f"{k:06d}.npy", point_object)
-                progress("objects", 1)
-        finally:
-            pairs.close()
-            if online is not None:
-                online.close()
-        return online.skipped if online is not None else 0, blind
+        lead = self.config.process_lead if 0 < self.config.processes_from <= n else 0
+        for k in range(n):
+            while loaded < min(n, k + window + 1 + lead):  # the window ahead of scan k, and the processes' lead
+                scan = next(scans)
+                i = scan.index
+                cloud = scan.points if motions is None else deskew(scan.points, motions[i], scan.phase)
+                seen[i] = SeenScan(cloud, poses[i], self.sensor)
+                pending.append((i, cloud))
+                pairs.add(i, cloud, poses[i])
+                if online is not None:
+                    online.add(i, cloud, scan.intensity, float(stamps[i]), poses[i])
+                loaded += 1
+            for old in [i for i in seen if i < k - window]:
+                del seen[old]
+            index, points = pending.popleft()
+            assert index == k
+            pairs.forget_before(k - window)
+            pairs.wait_for(k)
+            labelled = online.labels(k) if online is not None else None
+            point_object, observations, nearest = self._observe(k, points, poses[k], vehicle, seen, pairs,
+                                                                labelled)
+            blind = min(blind, nearest)
+            tracker.add_scan(k, float(stamps[k]), last_stamp, observations)
+            last_stamp = float(stamps[k])
+            np.save(workdir / f"{k:06d}.npy", point_object)
+            progress("objects", 1)
+        return blind
 
     def _observe(self, k: int, points: np.ndarray, pose: np.ndarray, vehicle: np.ndarray, seen: dict[int, SeenScan],
                  pairs: PairRegistration,
