@@ -199,9 +199,10 @@ class PairRegistrationProcess(PairRegistration):
         return []
 
     def wait_for(self, k: int) -> None:
+        last = min(self._scans - 1, k + (self._later[-1] if self._later else 0))  # the last scan k is paired with
+        if self._known <= k and last >= self._added:  # the process would wait for it as this one waits for k
+            raise ConfigError(f"pair registration: scan {k}'s later scans have not all arrived")
         while self._known <= k:
-            if k >= self._added:
-                raise ConfigError(f"pair registration: scan {k}'s later scans have not all arrived")
             done, relative, self.registered, self.refused = self._worker.receive()
             self._relative.update(relative)
             self._known = done + 1
