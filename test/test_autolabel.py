@@ -806,7 +806,7 @@ def test_the_online_model_vetoes_a_mover_by_share_alone_that_it_calls_static():
     hedge = [obs(k, 30.0, 0.5 if k % 3 == 0 else 0.0, 0.0) for k in range(10)]
     # A pedestrian whose seen-through boxes lie 2.7 m apart: a mover by travel, whatever the model says.
     walker = [obs(k, 40.0 + 0.3 * k, 0.5, 0.0) for k in range(10)]
-    tracker = Tracker(TrackConfig(cue_veto=True, cue_veto_share=0.05))
+    tracker = Tracker(TrackConfig(cue_veto=True, cue_veto_share=0.05, cue_veto_near=1.0))  # whatever near scans saw
     tracker.tracks = [Track(0, hedge), Track(1, walker),
                       Track(2, [dataclasses.replace(o, online=0.1) for o in hedge])]  # the model: 10 % moving
     assert tracker.movers(cue=True) == {1: SEEN_THROUGH, 2: SEEN_THROUGH}
@@ -815,6 +815,15 @@ def test_the_online_model_vetoes_a_mover_by_share_alone_that_it_calls_static():
     assert 0 in tracker.movers(cue=True)
     with pytest.raises(ConfigError, match="cue_veto_share"):
         TrackConfig(cue_veto_share=float("inf"))
+    # With cue_veto_near 0 (the default) the veto spares a track that a near scan saw through (the hedge above: near
+    # = far), and takes the same hedge seen through by far scans only.
+    tracker.config = TrackConfig()
+    far_only = [dataclasses.replace(o, near=0.0) for o in hedge]
+    tracker.tracks = [Track(0, hedge), Track(1, walker), Track(3, far_only)]
+    assert tracker.movers(cue=True) == {0: SEEN_THROUGH, 1: SEEN_THROUGH}
+    for bad in (float("nan"), -0.1, 1.5):
+        with pytest.raises(ConfigError, match="cue_veto_near"):
+            TrackConfig(cue_veto_near=bad)
 
 
 def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():

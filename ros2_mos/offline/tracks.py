@@ -57,12 +57,17 @@ class TrackConfig:
     max_area_ratio: float = 4.0
     #: A track that is a mover only by its share of seen-through observations (they travelled less than
     #: ``min_evidence_travel``) is none where the online model, when there is one, labelled at most ``cue_veto_share``
-    #: of its observations' points moving on average: foliage and fences are seen through now and then, and the model
-    #: knows them for static. Off: on simulated drives it removes most such false movers (VLP-32C validation
-    #: precision 98.4 -> 99.3 %), but on the real r2, where the model finds fewer movers, it unlabels a third of the
-    #: moving points, compact clusters that look like pedestrians among them (benchmarks/autolabel.md, round 30)
-    cue_veto: bool = False
+    #: of its observations' points moving on average: foliage, poles and parked cars are seen through now and then by
+    #: scans far apart, and the model knows them for static (VLP-32C suite easy-9301: trees 30-45 m away) ...
+    cue_veto: bool = True
     cue_veto_share: float = 0.05
+    #: ... and no observation of it had more than this share of its points seen through by a near scan
+    #: (``Observation.near``; 1: whatever the near scans saw): a walker whom the model misses is seen through by the
+    #: scans just before and after (the real 08a's track 97, which SemanticKITTI's people label moving; the veto
+    #: without this removed him, round 39), a tree or a parked car seen through by far scans only is not
+    #: (benchmarks/autolabel.md, round 41). Without it the veto was off since round 30: on the real r2 of then it
+    #: unlabelled a third of the moving points
+    cue_veto_near: float = 0.0
     #: A track that visibility does not make a mover is one on the online model's word (``Observation.online``) when
     #: at least ``cue_observations`` of its observations, and ``cue_track_share`` of them, had ``cue_share`` of their
     #: points labelled moving by it: queueing cars whose place the next car fills are never seen through.
@@ -163,11 +168,12 @@ class TrackConfig:
 
         check_numbers(self, "autolabel tracks",
                       zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
-                               "handover_travel", "cue_travel", "cue_veto_share", "cue_min_distance", "resume_scans",
+                               "handover_travel", "cue_travel", "cue_veto_share", "cue_veto_near", "cue_min_distance",
+                               "resume_scans",
                                "resume_stood", "resume_travel", "jump_gap", "jump_margin", "cue_end_travel",
                                "cue_end_still", "leave_travel", "leave_min_length"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller",
-                                   "cue_veto_share"))
+                                   "cue_veto_share", "cue_veto_near"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
                               f"{self.evidence_travel!r}")
@@ -425,8 +431,10 @@ class Tracker:
             return travelled  # parts cut off for being seen through (a pole beside a hedge): only if they travel
         if travelled:
             return True
-        if cue and cfg.cue_veto and np.mean([o.online for o in track.observations]) <= cfg.cue_veto_share:
-            return False  # seen through now and then where it stands, and the online model calls it static
+        if cue and cfg.cue_veto and np.mean([o.online for o in track.observations]) <= cfg.cue_veto_share \
+                and max(o.near for o in track.observations) <= cfg.cue_veto_near:
+            return False  # seen through now and then where it stands, the online model calls it static, and no
+            # scan just before or after saw through it
         return len(evidence) >= cfg.moving_share * len(track.observations)
 
     def labelled_moving(self, track: Track) -> bool:
