@@ -357,9 +357,15 @@ def test_config_is_checked():
                 {"instant_seen_through": 1.5}, {"instant_speed": float("inf")}, {"support_margin": -0.1},
                 {"odometry_margin": float("nan")}, {"odometry_margin_share": -0.01}, {"odometry_prefer": "b"},
                 {"instant_motion": "speed"}, {"cue_attach": -1.0}, {"cue_attach": float("nan")},
-                {"cue_attach": float("inf")}, {"deskew": "yes"}, {"deskew": True}):
+                {"cue_attach": float("inf")}, {"deskew": "yes"}, {"deskew": True}, {"processes_from": -1},
+                {"process_lead": float("nan")}):
         with pytest.raises(ConfigError):
             AutolabelConfig(**bad)
+    for bad in ({"processes_from": 2.5}, {"process_lead": True}):
+        with pytest.raises(ConfigError, match="must be a whole number"):
+            AutolabelConfig(**bad)
+    assert AutolabelConfig().in_processes(50) and not AutolabelConfig().in_processes(49)
+    assert not AutolabelConfig(processes_from=0).in_processes(10**6)
     for cls, bad in ((ObjectConfig, {"voxel": 0.0}), (ObjectConfig, {"max_range": float("nan")}),
                      (ObjectConfig, {"ego_share": 1.5}), (ObjectConfig, {"ego_cell": 0.0}),
                      (ObjectConfig, {"attach_distance": 0.0}), (ObjectConfig, {"attach_steep": 95.0}),
@@ -368,7 +374,7 @@ def test_config_is_checked():
         with pytest.raises(ConfigError):
             cls(**bad)
     # zero where zero means something
-    AutolabelConfig(support_margin=0.0, cue_attach=0.0,
+    AutolabelConfig(support_margin=0.0, cue_attach=0.0, processes_from=0, process_lead=0,
                     objects=ObjectConfig(attach_above=0.0, ego_radius=0.0, attach_steep=0.0))
 
 

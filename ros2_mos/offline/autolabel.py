@@ -174,14 +174,14 @@ class AutolabelConfig:
         if self.instant_motion not in INSTANT_MOTION:
             raise ConfigError(f"autolabel: instant_motion must be one of {', '.join(INSTANT_MOTION)}, got "
                               f"{self.instant_motion!r}")
-        for name in ("processes_from", "process_lead"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool):
-                raise ConfigError(f"autolabel: {name} must be a whole number, got {value!r}")
         check_numbers(self, "autolabel", zero_ok=("instant_context", "support_margin", "split_voxel", "cue_attach",
                                                   "odometry_margin", "odometry_margin_share", "instant_cue_reshape",
                                                   "processes_from", "process_lead"),
-                      at_most_one=("instant_seen_through",))
+                      at_most_one=("instant_seen_through",), whole=("processes_from", "process_lead"))
+
+    def in_processes(self, scans: int) -> bool:
+        """Whether a drive of ``scans`` scans has its pairs and cue in processes of their own (``processes_from``)."""
+        return 0 < self.processes_from <= scans
 
     @property
     def window(self) -> int:
@@ -363,7 +363,7 @@ class AutoLabeler:
     def _helpers(self, n: int) -> tuple[PairRegistration, OnlineCue | None]:
         """The scan pairs' registration and the online cue (None without one) for a drive of ``n`` scans: each in a
         process of its own from ``processes_from`` scans on."""
-        own = 0 < self.config.processes_from <= n
+        own = self.config.in_processes(n)
         offsets = (*self.config.near_offsets, *self.config.far_offsets)
         pairs = PairRegistration.for_drive(self.config.pairs, offsets, n, own)
         if self.cue_model is None:
@@ -388,7 +388,7 @@ class AutoLabeler:
         scans = iter(drive)
         loaded = 0
         blind = float("inf")
-        lead = self.config.process_lead if 0 < self.config.processes_from <= n else 0
+        lead = self.config.process_lead if self.config.in_processes(n) else 0
         for k in range(n):
             while loaded < min(n, k + window + 1 + lead):  # the window ahead of scan k, and the processes' lead
                 scan = next(scans)

@@ -30,11 +30,17 @@ from ros2_mos.core.projection import closest_point_image
 from ros2_mos.core.segments import _union_find
 
 
-def check_numbers(config: object, what: str, zero_ok: tuple[str, ...] = (), at_most_one: tuple[str, ...] = ()) -> None:
-    """Every number of a config dataclass finite and > 0 (>= 0 for ``zero_ok``; <= 1 for ``at_most_one``)."""
+def check_numbers(config: object, what: str, zero_ok: tuple[str, ...] = (), at_most_one: tuple[str, ...] = (),
+                  whole: tuple[str, ...] = ()) -> None:
+    """Every number of a config dataclass finite and > 0 (>= 0 for ``zero_ok``; <= 1 for ``at_most_one``); the fields
+    named in ``whole`` whole numbers (not bools)."""
     import dataclasses
     import math
 
+    for name in whole:
+        value = getattr(config, name)
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ConfigError(f"{what}: {name} must be a whole number, got {value!r}")
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         if not isinstance(value, (int, float)) or isinstance(value, bool):

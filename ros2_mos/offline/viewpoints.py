@@ -53,11 +53,8 @@ class PairRegistrationConfig:
     map_points: int = 20
 
     def __post_init__(self) -> None:
-        for name in ("from_offset", "iterations", "min_points", "map_points"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool):
-                raise ConfigError(f"pair registration: {name} must be a whole number, got {value!r}")
-        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points"))
+        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points"),
+                      whole=("from_offset", "iterations", "min_points", "map_points"))
 
 
 def pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
