@@ -18,6 +18,7 @@ from ros2_mos.core.postprocess import knn_backproject
 from ros2_mos.core.projection import pixel_index, pixel_index_columns, project, project_range
 from ros2_mos.core.residuals import free_space_image, free_space_images, past_range_image, residual_image
 from ros2_mos.core.segments import connected_regions, grow_regions
+from ros2_mos.offline.objects import voxel_clusters
 
 WINDOW = ResidualConfig(2.0, 50.0)
 SENSORS = list(SENSOR_PRESETS.values()) + [
@@ -119,6 +120,24 @@ def test_connected_regions_are_the_same_labels(sensor):
         grown, reference = both(lambda: grow_regions(seeds, got, fraction))
         np.testing.assert_array_equal(grown, reference)
         assert grown.any() and not grown[~valid].any()
+
+
+@pytest.mark.parametrize("voxel", [0.05, 0.2, 0.3])
+def test_voxel_clusters_are_the_same_clusters(voxel):
+    pts = scan(7)[:, :3] / 10.0  # dense enough near the centre for large clusters, sparse farther out
+    groups = (np.arange(len(pts)) % 3).astype(np.int64)
+    for grouped in (None, groups):
+        got, want = both(lambda: voxel_clusters(pts, voxel, grouped))
+        np.testing.assert_array_equal(got, want)
+        sizes = np.bincount(got)
+        assert 10 < len(sizes) < len(pts) and sizes.max() > 100  # many clusters, some large: a test that can fail
+    # by hand: two cells touching at a corner are one cluster, a free cell apart is another; numbered by smallest
+    cells = np.array([0, 5, 6, 20, 40], np.int64)
+    np.testing.assert_array_equal(kernels.voxel_clusters(cells, np.array([1, 20], np.int64)), [0, 1, 1, 0, 0])
+    with pytest.raises(ValueError, match="sorted and unique"):
+        kernels.voxel_clusters(np.array([3, 1], np.int64), np.array([1], np.int64))
+    with pytest.raises(ValueError, match="positive steps"):
+        kernels.voxel_clusters(cells, np.array([0], np.int64))
 
 
 @pytest.mark.parametrize("window,k", [(5, 5), (3, 9), (7, 4)])

@@ -25,7 +25,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 7
+#define MOS_KERNELS_ABI 8
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -477,6 +477,31 @@ void mos_connected_regions(const uint8_t *valid, const float *range, int32_t h, 
         }
     }
     for (int64_t p = 0; p < npix; ++p) labels[p] = valid[p] ? find_root(labels, p) : -1;
+}
+
+/* objects.voxel_clusters: the connected components of the occupied voxels `cells` (n keys, sorted, unique), two
+ * cells joined where one's key plus one of the `m` positive `steps` is the other's (the neighbour offsets as keys).
+ * cluster[i] is the component's index, components numbered by their smallest cell, as np.unique over the numpy
+ * code's roots numbers them. A cursor per step walks the sorted keys once: O(m n). parent is scratch of n. */
+void mos_voxel_clusters(const int64_t *cells, int64_t n, const int64_t *steps, int32_t m, int64_t *parent,
+                        int64_t *cursor, int64_t *cluster) {
+    for (int64_t i = 0; i < n; ++i) parent[i] = i;
+    for (int32_t s = 0; s < m; ++s) cursor[s] = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        for (int32_t s = 0; s < m; ++s) {
+            const int64_t want = cells[i] + steps[s];
+            int64_t j = cursor[s];
+            if (j <= i) j = i + 1;
+            while (j < n && cells[j] < want) ++j;
+            cursor[s] = j;
+            if (j < n && cells[j] == want) join(parent, i, j);
+        }
+    }
+    int64_t next = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        const int64_t root = find_root(parent, i);
+        cluster[i] = root == i ? next++ : cluster[root];
+    }
 }
 
 /* segments.grow_regions: out[p] = 1 where p's region (labels[p] >= 0, a pixel id as mos_connected_regions gives)

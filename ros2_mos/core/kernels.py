@@ -28,7 +28,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 7
+ABI = 8
 
 
 
@@ -96,6 +96,8 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     lib.mos_connected_regions.argtypes = [vp, vp, ctypes.c_int32, ctypes.c_int32, ctypes.c_float, ctypes.c_float,
                                           vp]
     lib.mos_grow_regions.restype = None
+    lib.mos_voxel_clusters.restype = None
+    lib.mos_voxel_clusters.argtypes = [vp, ctypes.c_int64, vp, ctypes.c_int32, vp, vp, vp]
     lib.mos_grow_regions.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_double, vp, vp]
     lib.mos_knn_vote.restype = None
     lib.mos_knn_vote.argtypes = [vp, vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_int64, ctypes.c_int32,
@@ -347,6 +349,25 @@ def connected_regions(valid: np.ndarray, range_image: np.ndarray, rel: float, mi
     _LIB.mos_connected_regions(mask.ctypes.data, rng.ctypes.data, rng.shape[0], rng.shape[1], _f32(rel),
                                _f32(min_jump), labels.ctypes.data)
     return labels
+
+
+def voxel_clusters(cells: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """``objects.voxel_clusters`` after its cells: per cell of ``cells`` (voxel keys, sorted and unique) the index of
+    its cluster, cells joined where one's key plus one of ``steps`` (positive key offsets) is the other's; clusters
+    numbered by their smallest cell."""
+    keys = np.ascontiguousarray(cells, dtype=np.int64)
+    offsets = np.ascontiguousarray(steps, dtype=np.int64)
+    if keys.ndim != 1 or offsets.ndim != 1 or (offsets <= 0).any():
+        raise ValueError(f"voxel clusters of cells {keys.shape} with positive steps, got steps {offsets.tolist()}")
+    if len(keys) > 1 and (np.diff(keys) <= 0).any():
+        raise ValueError("voxel clusters: the cells must be sorted and unique")
+    parent = np.empty(len(keys), np.int64)
+    cursor = np.empty(len(offsets), np.int64)
+    cluster = np.empty(len(keys), np.int64)
+    assert _LIB is not None
+    _LIB.mos_voxel_clusters(keys.ctypes.data, len(keys), offsets.ctypes.data, len(offsets), parent.ctypes.data,
+                            cursor.ctypes.data, cluster.ctypes.data)
+    return cluster
 
 
 def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:

@@ -27,6 +27,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ConfigError
 from ros2_mos.core.projection import closest_point_image
+from ros2_mos.core import kernels
 from ros2_mos.core.segments import _union_find
 
 
@@ -234,9 +235,12 @@ def voxel_clusters(points: np.ndarray, voxel: float, groups: np.ndarray | None =
     if groups is not None:  # the group outermost: a neighbour step never leaves its group's block (the border)
         keys = keys + np.asarray(groups, np.int64) * (dims[0] * dims[1] * dims[2])
     cells, point_cell = np.unique(keys, return_inverse=True)
+    steps = np.array([(dx * dims[1] + dy) * dims[2] + dz for dx, dy, dz in _HALF_NEIGHBOURS], np.int64)
+    if kernels.enabled():
+        return kernels.voxel_clusters(cells, steps)[point_cell.reshape(-1)]
     a, b = [], []
-    for dx, dy, dz in _HALF_NEIGHBOURS:
-        shifted = cells + (dx * dims[1] + dy) * dims[2] + dz
+    for step in steps:
+        shifted = cells + step
         at = np.searchsorted(cells, shifted)
         at = np.minimum(at, len(cells) - 1)
         hit = np.flatnonzero(cells[at] == shifted)
