@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ros2_mos.core import kernels
 from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ConfigError
 from ros2_mos.core.projection import closest_point_image
-from ros2_mos.core import kernels
 from ros2_mos.core.segments import _union_find
 
 
