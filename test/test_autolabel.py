@@ -86,14 +86,14 @@ def test_local_ground_leaves_out_spurious_returns_under_the_road():
     assert step[21:28].tolist() == pytest.approx([-2.7] * 7)  # y 3-4, within two cells of the lower side
 
 
-def test_voxel_clusters_link_26_neighbours_and_split_at_a_free_voxel():
+def test_voxel_clusters_link_26_neighbours_and_split_at_a_free_voxel(geometry_code):
     a = np.array([[0.1, 0.1, 0.1], [0.5, 0.5, 0.5], [0.9, 0.1, 0.9]])  # diagonal neighbours of 0.4 m voxels
     b = np.array([[2.1, 0.1, 0.1], [2.5, 0.1, 0.1]])  # one free voxel (x 1.2-1.6... 2.0) away
     ids = voxel_clusters(np.vstack([a, b]), 0.4)
     assert len(set(ids[:3])) == 1 and len(set(ids[3:])) == 1 and ids[0] != ids[3]
 
 
-def test_voxel_clusters_in_groups_never_join_across_groups():
+def test_voxel_clusters_in_groups_never_join_across_groups(geometry_code):
     # Two touching pairs of points; as one set the four make one cluster, in groups (0, 0, 1, 1) two; within a group
     # a free voxel still splits.
     pts = np.array([[0.0, 0, 0], [0.5, 0, 0], [0.2, 0.1, 0], [0.7, 0.1, 0], [5.0, 0, 0]], np.float32)
@@ -139,7 +139,7 @@ def test_a_ring_piece_beside_an_object_joins_it_and_one_apart_does_not():
     assert found.counts[car_id] == alone.counts[car_id] == 800  # joined by label, not counted as the object's own
 
 
-def test_a_column_under_an_object_joins_it_ring_by_ring_and_the_road_at_its_foot_does_not():
+def test_a_column_under_an_object_joins_it_ring_by_ring_and_the_road_at_its_foot_does_not(geometry_code):
     sensor = SensorConfig("column8", 8, 360, 3.0, -25.0, 0.0, 80.0)  # rows 3.5 degrees apart, row v centred at
     pitch = np.radians(3.0 - 3.5 * (np.arange(8) + 0.5))  # 3 - 3.5 (v + 0.5) degrees
 
@@ -166,7 +166,7 @@ def test_a_column_under_an_object_joins_it_ring_by_ring_and_the_road_at_its_foot
     assert joined(45.0, points[:4]) == [0, 0, 0, 0]  # nothing below it: it joins
 
 
-def test_a_stack_of_rings_over_an_object_joins_it_and_a_crown_far_above_it_does_not():
+def test_a_stack_of_rings_over_an_object_joins_it_and_a_crown_far_above_it_does_not(geometry_code):
     sensor = SensorConfig("column8", 8, 360, 3.0, -25.0, 0.0, 80.0)  # rows 3.5 degrees apart, as above
     pitch = np.radians(3.0 - 3.5 * (np.arange(8) + 0.5))
 
@@ -1567,3 +1567,27 @@ def test_pairs_and_cue_in_processes_of_their_own_label_as_in_this_one(jam, tmp_p
             setattr(importlib.import_module(f"ros2_mos.offline.{module}"), "Worker", original)
     assert sorted(w.name for w in started) == ["online cue", "pair registration"]
     assert all(w.returncode is not None for w in started)  # stopped, not left running
+
+
+def test_find_objects_finds_the_same_objects_on_the_compiled_kernels_and_the_numpy_code(jam):
+    # The jam's VLP-32C scans: their clusters and the points their columns attach (attach_below, attach_over), both
+    # ways, must be the same ids; the scene has both kinds of attachment (a test that can fail).
+    from ros2_mos.core import kernels
+    from ros2_mos.offline.drives import open_drive
+
+    if not kernels.enabled():
+        pytest.fail(f"the compiled kernels are not in use here: {kernels.status()} (make install builds them)")
+    sensor = sensor_preset("vlp32c")
+    drive = open_drive(jam / "sequences" / "00")
+    attached = 0
+    for k, scan in enumerate(drive):
+        if k % 6:
+            continue
+        compiled = find_objects(scan.points, ObjectConfig(), None, sensor)
+        with kernels.disabled():
+            reference = find_objects(scan.points, ObjectConfig(), None, sensor)
+        np.testing.assert_array_equal(compiled.point_object, reference.point_object)
+        np.testing.assert_array_equal(compiled.attached, reference.attached)
+        assert compiled.n_objects == reference.n_objects > 3
+        attached += int(compiled.attached.sum())
+    assert attached > 100

@@ -25,7 +25,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 8
+#define MOS_KERNELS_ABI 9
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -501,6 +501,68 @@ void mos_voxel_clusters(const int64_t *cells, int64_t n, const int64_t *steps, i
     for (int64_t i = 0; i < n; ++i) {
         const int64_t root = find_root(parent, i);
         cluster[i] = root == i ? next++ : cluster[root];
+    }
+}
+
+/* objects._next_return: the first return in column c from row v + step on (up to `search` rows), -1 where none. */
+static inline int32_t next_return(const int32_t *image, int32_t h, int32_t w, int32_t v, int32_t c, int32_t step,
+                                  int32_t search) {
+    for (int32_t k = 1; k <= search; ++k) {
+        const int32_t row = v + step * k;
+        if (row < 0 || row >= h) break;
+        const int32_t p = image[(int64_t)row * w + c];
+        if (p >= 0) return p;
+    }
+    return -1;
+}
+
+/* objects.attach_below over the h x w image of closest points (-1 empty), row by row from the top: a point
+ * `chosen` takes the object of the next return above it where that is on one, rises over it at least `steep`
+ * times their horizontal distance apart, and the point does not continue the ground of the return below it. The
+ * numpy code's arithmetic: float32 differences, the two slopes in double, the ground step in float32. A row's
+ * points read only rows above it, so one pass in place equals the numpy code's row-at-a-time update. */
+void mos_attach_below(const int32_t *image, int32_t h, int32_t w, const uint8_t *chosen, const float *horizontal,
+                      const float *z, double steep, double gentle, float ground_step, float ground_grade,
+                      int32_t search, int32_t *point_object, uint8_t *attached) {
+    for (int32_t v = 1; v < h; ++v) {
+        for (int32_t c = 0; c < w; ++c) {
+            const int32_t p = image[(int64_t)v * w + c];
+            if (p < 0 || !chosen[p]) continue;
+            const int32_t a = next_return(image, h, w, v, c, -1, search);
+            if (a < 0 || point_object[a] < 0) continue;
+            const float rise = z[a] - z[p];
+            if (!(rise > 0.0f) || !((double)rise >= steep * (double)fabsf(horizontal[a] - horizontal[p]))) continue;
+            const int32_t b = next_return(image, h, w, v, c, 1, search);
+            const int32_t bb = b < 0 ? 0 : b;
+            const float step = z[p] - z[bb], apart = fabsf(horizontal[p] - horizontal[bb]);
+            const float flat = ground_step + ground_grade * apart;
+            const double limit = fmin((double)flat, gentle * (double)apart);
+            if (b >= 0 && (double)step <= limit) continue;  /* the ground at the object's foot */
+            point_object[p] = point_object[a];
+            attached[p] = 1;
+        }
+    }
+}
+
+/* objects.attach_over, row by row from the bottom: a point `chosen` takes the object of the next return below it
+ * where that is on one and the point rises over it at least `steep` times their horizontal distance apart and at
+ * most `row_slope` times its own horizontal range. */
+void mos_attach_over(const int32_t *image, int32_t h, int32_t w, const uint8_t *chosen, const float *horizontal,
+                     const float *z, double steep, double row_slope, int32_t search, int32_t *point_object,
+                     uint8_t *attached) {
+    for (int32_t v = h - 2; v >= 0; --v) {
+        for (int32_t c = 0; c < w; ++c) {
+            const int32_t p = image[(int64_t)v * w + c];
+            if (p < 0 || !chosen[p]) continue;
+            const int32_t b = next_return(image, h, w, v, c, 1, search);
+            if (b < 0 || point_object[b] < 0) continue;
+            const float rise = z[p] - z[b];
+            if (rise > 0.0f && (double)rise >= steep * (double)fabsf(horizontal[p] - horizontal[b])
+                && (double)rise <= row_slope * (double)horizontal[p]) {
+                point_object[p] = point_object[b];
+                attached[p] = 1;
+            }
+        }
     }
 }
 

@@ -28,7 +28,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 8
+ABI = 9
 
 
 
@@ -97,6 +97,12 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
                                           vp]
     lib.mos_grow_regions.restype = None
     lib.mos_voxel_clusters.restype = None
+    lib.mos_attach_below.restype = None
+    lib.mos_attach_below.argtypes = [vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_double, ctypes.c_double,
+                                     ctypes.c_float, ctypes.c_float, ctypes.c_int32, vp, vp]
+    lib.mos_attach_over.restype = None
+    lib.mos_attach_over.argtypes = [vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_double, ctypes.c_double,
+                                    ctypes.c_int32, vp, vp]
     lib.mos_voxel_clusters.argtypes = [vp, ctypes.c_int64, vp, ctypes.c_int32, vp, vp, vp]
     lib.mos_grow_regions.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_double, vp, vp]
     lib.mos_knn_vote.restype = None
@@ -368,6 +374,48 @@ def voxel_clusters(cells: np.ndarray, steps: np.ndarray) -> np.ndarray:
     _LIB.mos_voxel_clusters(keys.ctypes.data, len(keys), offsets.ctypes.data, len(offsets), parent.ctypes.data,
                             cursor.ctypes.data, cluster.ctypes.data)
     return cluster
+
+
+def _column_inputs(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,
+                   point_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The checked image and the mask of the points ``which`` for :func:`attach_below` and :func:`attach_over`."""
+    n = len(point_object)
+    if (image.dtype != np.int32 or image.ndim != 2 or not image.flags.c_contiguous or point_object.dtype != np.int32
+            or not point_object.flags.c_contiguous or horizontal.dtype != np.float32 or z.dtype != np.float32
+            or len(horizontal) != n or len(z) != n):
+        raise ValueError(f"column attachment of an int32 image {image.dtype} {image.shape}, int32 object ids "
+                         f"{point_object.dtype} and float32 coordinates {horizontal.dtype} {z.dtype} of {n} points")
+    chosen = np.zeros(n, np.uint8)
+    chosen[which] = 1
+    return image, chosen
+
+
+def attach_below(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,
+                 point_object: np.ndarray, steep: float, gentle: float, ground_step: float, ground_grade: float,
+                 search: int) -> np.ndarray:
+    """``objects.attach_below`` over the closest points' ``image`` (int32), in place on ``point_object`` (int32);
+    ``horizontal`` and ``z`` float32 per point, ``steep`` and ``gentle`` the slopes; returns which were attached."""
+    image, chosen = _column_inputs(image, which, horizontal, z, point_object)
+    horizontal, z = np.ascontiguousarray(horizontal), np.ascontiguousarray(z)
+    attached = np.zeros(len(point_object), np.uint8)
+    assert _LIB is not None
+    _LIB.mos_attach_below(image.ctypes.data, image.shape[0], image.shape[1], chosen.ctypes.data,
+                          horizontal.ctypes.data, z.ctypes.data, float(steep), float(gentle), _f32(ground_step),
+                          _f32(ground_grade), int(search), point_object.ctypes.data, attached.ctypes.data)
+    return attached.view(bool)
+
+
+def attach_over(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,
+                point_object: np.ndarray, steep: float, row_slope: float, search: int) -> np.ndarray:
+    """``objects.attach_over`` as :func:`attach_below`; ``row_slope`` the rise's bound per metre of range."""
+    image, chosen = _column_inputs(image, which, horizontal, z, point_object)
+    horizontal, z = np.ascontiguousarray(horizontal), np.ascontiguousarray(z)
+    attached = np.zeros(len(point_object), np.uint8)
+    assert _LIB is not None
+    _LIB.mos_attach_over(image.ctypes.data, image.shape[0], image.shape[1], chosen.ctypes.data,
+                         horizontal.ctypes.data, z.ctypes.data, float(steep), float(row_slope), int(search),
+                         point_object.ctypes.data, attached.ctypes.data)
+    return attached.view(bool)
 
 
 def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:

@@ -433,6 +433,19 @@ def _column_rows(points: np.ndarray, which: np.ndarray, point_object: np.ndarray
             yield v, cols, image
 
 
+def _compiled_columns(points: np.ndarray, which: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
+                      image: np.ndarray | None) -> np.ndarray | None:
+    """The image of closest points for the compiled :func:`attach_below` / :func:`attach_over` (given or computed);
+    None where the numpy code runs instead (kernels off, other dtypes, or nothing to attach, as
+    :func:`_column_rows`)."""
+    if not kernels.enabled() or points.dtype != np.float32 or point_object.dtype != np.int32:
+        return None
+    if len(which) == 0 or not (point_object >= 0).any():
+        return None
+    image = closest_point_image(points, sensor) if image is None else image
+    return image if image.dtype == np.int32 and image.flags.c_contiguous else None
+
+
 def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
                  steep: float, image: np.ndarray | None = None) -> np.ndarray:
     """Give each of the points ``loose`` (indices; on no object) the object id of the next return above it in its
@@ -445,6 +458,10 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
     horizontal = np.hypot(points[:, 0], points[:, 1])
     z = points[:, 2]
     steep_slope, gentle_slope = np.tan(np.radians(steep)), np.tan(np.radians(GROUND_STEEPEST))
+    image = _compiled_columns(points, loose, point_object, sensor, image)
+    if image is not None:
+        return kernels.attach_below(image, loose, horizontal, z, point_object, steep_slope, gentle_slope,
+                                    GROUND_STEP, GROUND_GRADE, COLUMN_SEARCH_ROWS)
     for v, cols, image in _column_rows(points, loose, point_object, sensor, range(1, sensor.height), image):
         point, above, below = image[v, cols], _next_return(image, v, cols, -1), _next_return(image, v, cols, 1)
         has = above >= 0
@@ -472,6 +489,10 @@ def attach_over(points: np.ndarray, raised: np.ndarray, point_object: np.ndarray
     horizontal = np.hypot(points[:, 0], points[:, 1])
     z = points[:, 2]
     steep_slope, row_slope = np.tan(np.radians(steep)), rows * np.tan(sensor.fov / sensor.height)
+    image = _compiled_columns(points, raised, point_object, sensor, image)
+    if image is not None:
+        return kernels.attach_over(image, raised, horizontal, z, point_object, steep_slope, row_slope,
+                                   COLUMN_SEARCH_ROWS)
     for v, cols, image in _column_rows(points, raised, point_object, sensor, range(sensor.height - 2, -1, -1),
                                        image):
         point, below = image[v, cols], _next_return(image, v, cols, 1)
