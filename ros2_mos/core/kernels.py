@@ -6,7 +6,8 @@ results are bit-identical (``test/test_kernels.py``) and several times faster (b
 registration's normals, Gauss-Newton sums and loop (``registration.py``) are here too; they agree with their
 numpy code to 1e-9 (double-precision sums in another order, ``test/test_registration.py``). The range image's
 connected regions (``segments.py``: the same labels) and the kNN vote (``postprocess.py``: the same labels,
-probabilities to 2e-7: float32 sums in another order, eight points at a time in vector lanes) are here as well. The
+probabilities to 2e-7: float32 sums in another order, eight points at a time in vector lanes) are here as well, and
+so are autolabel's voxel clusters and column rules (``offline/objects.py``: the same cluster and object ids). The
 extension is built by ``pip install`` (setup.py; it needs a C compiler). Where it is missing or stale, or
 with ``ROS2_MOS_KERNELS=0`` in the environment, :func:`enabled` is False and the numpy code runs instead;
 :func:`status` says which in one line (the node logs it, ``ros2-mos bench`` prints it).
