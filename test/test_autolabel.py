@@ -1085,6 +1085,37 @@ def test_a_mover_whose_box_changes_shape_moves_now_where_the_online_model_says_s
     assert AutoLabeler(sensor_preset("hdl64"), AutolabelConfig())._moving_now(result) == set()
     with pytest.raises(ConfigError, match="instant_cue_reshape"):
         AutolabelConfig(instant_cue_reshape=float("nan"))
+    # A car driving towards -x at 0.5 m/s (its centroid), whose front edge moves 0.07 m a scan and its rear 0.03 as
+    # more of it comes into view: its box moved 0.3 m/s (the edges agree on that much; instant_speed 0.4), its
+    # centroid 0.5 m/s. Moving now where the model labels it moving and the centroid is heeded; not otherwise.
+    def driving(rear: float, online: float) -> Track:
+        return Track(0, [obs(k, 50.0 - (0.1 - rear) * k, 53.0 - rear * k, online) for k in range(22)])
+
+    tracker.tracks = [driving(0.03, 0.9)]
+    for centroid, moving in ((True, set(range(22))), (False, set())):
+        labeler = AutoLabeler(sensor_preset("hdl64"), AutolabelConfig(instant_cue_centroid=centroid))
+        assert labeler._moving_now(result) == {(k, 0) for k in moving}
+    labeler = AutoLabeler(sensor_preset("hdl64"), AutolabelConfig())
+    for track in (driving(0.03, 0.3),  # the model calls it static
+                  Track(0, [obs(k, 50.0, 54.5, 0.9, 0.5 if k >= 20 else 0.0) for k in range(22)])):  # it waits
+        tracker.tracks = [track]
+        assert labeler._moving_now(result) == set()
+    # 3 m beside the sensor (CUE_VIEW_DISTANCE): the view of it, not it, may have moved
+    tracker.tracks = [Track(0, [dataclasses.replace(o, distance=3.0) for o in driving(0.03, 0.9).observations])]
+    assert labeler._moving_now(result) == set()
+
+    # A car that waits 10 scans, then moves off (centroid 0.5 m/s, box 0.1 m/s: its rear comes into view): moving now
+    # as it drives where the model labelled it static while it waited; where the model labelled the waiting car
+    # moving (a model that calls queues moving), its word on the driving does not count either.
+    def waits_then_drives(waiting_online: float) -> Track:
+        return Track(0, [obs(k, 50.0, 54.5, waiting_online) if k < 10 else
+                         obs(k, 50.0 - 0.09 * (k - 10), 54.5 - 0.01 * (k - 10), 0.9) for k in range(22)])
+
+    tracker.tracks = [waits_then_drives(0.1)]
+    now = {k for k, _ in labeler._moving_now(result)}
+    assert set(range(15, 22)) <= now and not now & set(range(10))
+    tracker.tracks = [waits_then_drives(0.9)]
+    assert labeler._moving_now(result) == set()
 
 
 def test_an_object_whose_seen_through_part_lies_apart_from_the_rest_is_two():
