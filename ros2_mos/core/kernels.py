@@ -98,13 +98,13 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
                                           vp]
     lib.mos_grow_regions.restype = None
     lib.mos_voxel_clusters.restype = None
+    lib.mos_voxel_clusters.argtypes = [vp, ctypes.c_int64, vp, ctypes.c_int32, vp, vp, vp]
     lib.mos_attach_below.restype = None
     lib.mos_attach_below.argtypes = [vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_double, ctypes.c_double,
                                      ctypes.c_float, ctypes.c_float, ctypes.c_int32, vp, vp]
     lib.mos_attach_over.restype = None
     lib.mos_attach_over.argtypes = [vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_double, ctypes.c_double,
                                     ctypes.c_int32, vp, vp]
-    lib.mos_voxel_clusters.argtypes = [vp, ctypes.c_int64, vp, ctypes.c_int32, vp, vp, vp]
     lib.mos_grow_regions.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_double, vp, vp]
     lib.mos_knn_vote.restype = None
     lib.mos_knn_vote.argtypes = [vp, vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_int64, ctypes.c_int32,

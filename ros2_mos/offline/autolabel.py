@@ -159,10 +159,10 @@ class AutolabelConfig:
     #: before and after it moves now where the online model labelled at least ``CUE_MOVING_NOW`` of its points moving,
     #: though its box did not travel so fast (a car slowing to a stop or moving off, whose box the view of it stretches
     #: and shrinks; not within :data:`CUE_VIEW_DISTANCE` of the sensor), on a track where the model is not wrong while
-    #: it stands: where its box stood still
-    #: (:data:`CUE_STILL_SPEED`) and no near scan saw through it in :data:`CUE_STILL_OBSERVATIONS` observations or more,
-    #: the model labelled under :data:`CUE_STILL_ONLINE` of it moving. Without that condition the VLP-16 model, which
-    #: labels waiting cars moving, took the centroids a changing view slides (VLP-16 validation 86.44 -> 85.97 instant).
+    #: it stands: where its box stood still (:data:`CUE_STILL_SPEED`) and no near scan saw through it in
+    #: :data:`CUE_STILL_OBSERVATIONS` observations or more, the model labelled under :data:`CUE_STILL_ONLINE` of it
+    #: moving. Without these conditions the VLP-16 model, which labels waiting cars moving, took the centroids a
+    #: changing view slides (VLP-16 validation 86.44 -> 85.97 instant; benchmarks/autolabel.md, round 42).
     instant_cue_centroid: bool = True
     #: Each scan deskewed before objects and visibility (:mod:`~ros2_mos.core.deskew`: its points moved into the
     #: frame of the scan's pose by the motion between the poses around it, each at its firing time: from the cloud's
