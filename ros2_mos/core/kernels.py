@@ -377,9 +377,10 @@ def voxel_clusters(cells: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return cluster
 
 
-def _column_inputs(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,
-                   point_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The checked image and the mask of the points ``which`` for :func:`attach_below` and :func:`attach_over`."""
+def _attach(function: str, image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,
+            point_object: np.ndarray, *numbers: float | int) -> np.ndarray:
+    """Checks the inputs of :func:`attach_below` / :func:`attach_over` and calls the kernel ``function`` with
+    ``numbers`` (its scalar arguments, already of their C types) between the points' arrays and the outputs."""
     n = len(point_object)
     if (image.dtype != np.int32 or image.ndim != 2 or not image.flags.c_contiguous or point_object.dtype != np.int32
             or not point_object.flags.c_contiguous or horizontal.dtype != np.float32 or z.dtype != np.float32
@@ -388,7 +389,13 @@ def _column_inputs(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray,
                          f"{point_object.dtype} and float32 coordinates {horizontal.dtype} {z.dtype} of {n} points")
     chosen = np.zeros(n, np.uint8)
     chosen[which] = 1
-    return image, chosen
+    horizontal, z = np.ascontiguousarray(horizontal), np.ascontiguousarray(z)
+    attached = np.zeros(n, np.uint8)
+    assert _LIB is not None
+    getattr(_LIB, function)(image.ctypes.data, image.shape[0], image.shape[1], chosen.ctypes.data,
+                            horizontal.ctypes.data, z.ctypes.data, *numbers, point_object.ctypes.data,
+                            attached.ctypes.data)
+    return attached.view(bool)
 
 
 def attach_below(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,
@@ -396,27 +403,15 @@ def attach_below(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z
                  search: int) -> np.ndarray:
     """``objects.attach_below`` over the closest points' ``image`` (int32), in place on ``point_object`` (int32);
     ``horizontal`` and ``z`` float32 per point, ``steep`` and ``gentle`` the slopes; returns which were attached."""
-    image, chosen = _column_inputs(image, which, horizontal, z, point_object)
-    horizontal, z = np.ascontiguousarray(horizontal), np.ascontiguousarray(z)
-    attached = np.zeros(len(point_object), np.uint8)
-    assert _LIB is not None
-    _LIB.mos_attach_below(image.ctypes.data, image.shape[0], image.shape[1], chosen.ctypes.data,
-                          horizontal.ctypes.data, z.ctypes.data, float(steep), float(gentle), _f32(ground_step),
-                          _f32(ground_grade), int(search), point_object.ctypes.data, attached.ctypes.data)
-    return attached.view(bool)
+    return _attach("mos_attach_below", image, which, horizontal, z, point_object, float(steep), float(gentle),
+                   _f32(ground_step), _f32(ground_grade), int(search))
 
 
 def attach_over(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,
                 point_object: np.ndarray, steep: float, row_slope: float, search: int) -> np.ndarray:
     """``objects.attach_over`` as :func:`attach_below`; ``row_slope`` the rise's bound per metre of range."""
-    image, chosen = _column_inputs(image, which, horizontal, z, point_object)
-    horizontal, z = np.ascontiguousarray(horizontal), np.ascontiguousarray(z)
-    attached = np.zeros(len(point_object), np.uint8)
-    assert _LIB is not None
-    _LIB.mos_attach_over(image.ctypes.data, image.shape[0], image.shape[1], chosen.ctypes.data,
-                         horizontal.ctypes.data, z.ctypes.data, float(steep), float(row_slope), int(search),
-                         point_object.ctypes.data, attached.ctypes.data)
-    return attached.view(bool)
+    return _attach("mos_attach_over", image, which, horizontal, z, point_object, float(steep), float(row_slope),
+                   int(search))
 
 
 def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:
