@@ -512,6 +512,7 @@ class AutoLabeler:
             before = np.maximum(index - cfg.instant_span, 0)
             after = np.minimum(index + cfg.instant_span, m - 1)
             dt = np.maximum(t[after] - t[before], 1e-3)
+            told = np.array([o.online >= CUE_MOVING_NOW for o in obs])
             if cfg.instant_motion == "box":
                 lo = np.array([o.lo[:2] for o in obs])
                 hi = np.array([o.hi[:2] for o in obs])
@@ -521,13 +522,7 @@ class AutoLabeler:
                     cut_lo, cut_hi = cut[before, 0] | cut[after, 0], cut[before, 1] | cut[after, 1]
                 shift = box_shift(lo[before], hi[before], lo[after], hi[after], cut_lo, cut_hi)
                 context = np.ones(m, bool)
-                told = np.array([o.online >= CUE_MOVING_NOW for o in obs])
                 labelled = reshaped(lo[before], hi[before], lo[after], hi[after], cfg.instant_cue_reshape) & told
-                if cfg.instant_cue_centroid and self._model_right_where_it_stood(obs, shift, dt):
-                    c = np.array([o.centroid[:2] for o in obs])
-                    travelled = np.where(after > before, np.linalg.norm(c[after] - c[before], axis=1) / dt, 0.0)
-                    beside = np.array([o.distance < CUE_VIEW_DISTANCE for o in obs])
-                    labelled |= (travelled >= cfg.instant_speed) & told & ~beside
             else:
                 c = np.array([o.centroid[:2] for o in obs])
                 shift = c[after] - c[before]
@@ -537,19 +532,15 @@ class AutoLabeler:
                 labelled = np.zeros(m, bool)
             speed = np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
             near = np.array([o.near >= cfg.instant_seen_through for o in obs])
+            box = cfg.instant_motion == "box"
+            if box and cfg.instant_cue_centroid and model_right_where_it_stood(obs, speed, near):
+                c = np.array([o.centroid[:2] for o in obs])
+                travelled = np.where(after > before, np.linalg.norm(c[after] - c[before], axis=1) / dt, 0.0)
+                beside = np.array([o.distance < CUE_VIEW_DISTANCE for o in obs])
+                labelled |= (travelled >= cfg.instant_speed) & told & ~beside
             moving = near | ((speed >= cfg.instant_speed) & context) | labelled
             out.update((o.scan, o.obj) for o, flag in zip(obs, moving) if flag)
         return out
-
-    def _model_right_where_it_stood(self, obs: list[Observation], shift: np.ndarray, dt: np.ndarray) -> bool:
-        """Whether the online model labelled a track's observations that stood (its box travelled under
-        :data:`CUE_STILL_SPEED` over ``dt``, no near scan saw through it) mostly static: under
-        :data:`CUE_STILL_ONLINE` on average, or it stood fewer than :data:`CUE_STILL_OBSERVATIONS` times."""
-        speed = np.linalg.norm(shift, axis=1) / dt
-        stood = (speed < CUE_STILL_SPEED) & np.array([o.near < self.config.instant_seen_through for o in obs])
-        if stood.sum() < CUE_STILL_OBSERVATIONS:
-            return True
-        return float(np.mean([o.online for o, s in zip(obs, stood) if s])) < CUE_STILL_ONLINE
 
     def _moving_ever(self, result: AutolabelResult) -> set[tuple[int, int]]:
         """The observations of movers that overlap, from above, where their track was seen through (SemanticKITTI's
@@ -583,6 +574,16 @@ class AutoLabeler:
             else:
                 moving[j] = (scan, j) in result.moving_now
         return moving
+
+
+def model_right_where_it_stood(obs: list[Observation], speed: np.ndarray, near: np.ndarray) -> bool:
+    """Whether the online model labelled a track's observations that stood (``speed``, its box's, under
+    :data:`CUE_STILL_SPEED`, and not seen through by a near scan, ``near``) mostly static: under
+    :data:`CUE_STILL_ONLINE` on average, or it stood fewer than :data:`CUE_STILL_OBSERVATIONS` times."""
+    stood = (speed < CUE_STILL_SPEED) & ~near
+    if stood.sum() < CUE_STILL_OBSERVATIONS:
+        return True
+    return float(np.mean([o.online for o, s in zip(obs, stood) if s])) < CUE_STILL_ONLINE
 
 
 def reshaped(lo0: np.ndarray, hi0: np.ndarray, lo1: np.ndarray, hi1: np.ndarray, least: float) -> np.ndarray:

@@ -169,9 +169,8 @@ class TrackConfig:
         check_numbers(self, "autolabel tracks",
                       zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
                                "handover_travel", "cue_travel", "cue_veto_share", "cue_veto_near", "cue_min_distance",
-                               "resume_scans",
-                               "resume_stood", "resume_travel", "jump_gap", "jump_margin", "cue_end_travel",
-                               "cue_end_still", "leave_travel", "leave_min_length"),
+                               "resume_scans", "resume_stood", "resume_travel", "jump_gap", "jump_margin",
+                               "cue_end_travel", "cue_end_still", "leave_travel", "leave_min_length"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller",
                                    "cue_veto_share", "cue_veto_near"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
