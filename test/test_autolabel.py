@@ -61,13 +61,13 @@ def label_scene(tmp_path: Path, n: int, ego, movers, walls=WALLS, **settings):
 
 
 # -- stages -----------------------------------------------------------------------------------------------------
-def test_local_ground_is_the_lowest_point_nearby():
+def test_local_ground_is_the_lowest_point_nearby(geometry_code):
     pts = np.array([[0.2, 0.2, 0.0], [0.7, 0.3, 1.5], [5.5, 0.5, 0.3], [5.2, 0.4, 2.0]], np.float32)
     ground = local_ground(pts, cell=1.0, radius=1)
     assert ground.tolist() == pytest.approx([0.0, 0.0, 0.3, 0.3])  # cells 0 and 5 are 5 apart: separate
 
 
-def test_local_ground_leaves_out_spurious_returns_under_the_road():
+def test_local_ground_leaves_out_spurious_returns_under_the_road(geometry_code):
     # A flat road at z -1.7 over 7 x 7 one-metre cells, nine spurious returns 4.5 m under it in cell (3, 3) (as on the
     # real 08a under the car ahead), a car body 1 m above the road in cell (4, 3).
     xs, ys = np.meshgrid(np.arange(7) + 0.5, np.arange(7) + 0.5)
@@ -103,7 +103,7 @@ def test_voxel_clusters_in_groups_never_join_across_groups(geometry_code):
     assert grouped[4] not in (grouped[0], grouped[2])
 
 
-def test_loose_points_go_to_the_nearest_object_within_reach_seen_from_above():
+def test_loose_points_go_to_the_nearest_object_within_reach_seen_from_above(geometry_code):
     # Two objects (ids 0 and 1) whose nearest points lie at x = 0 and x = 2; low points beside them.
     points = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [2.0, 0.0, 1.0], [3.0, 0.0, 1.0],
                        [0.55, 0.0, 0.2],   # 0.55 m from object 0, 1.45 m from object 1: object 0

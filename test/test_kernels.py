@@ -18,7 +18,7 @@ from ros2_mos.core.postprocess import knn_backproject
 from ros2_mos.core.projection import pixel_index, pixel_index_columns, project, project_range
 from ros2_mos.core.residuals import free_space_image, free_space_images, past_range_image, residual_image
 from ros2_mos.core.segments import connected_regions, grow_regions
-from ros2_mos.offline.objects import voxel_clusters
+from ros2_mos.offline.objects import attach_to_nearest, local_ground, voxel_clusters
 
 WINDOW = ResidualConfig(2.0, 50.0)
 SENSORS = list(SENSOR_PRESETS.values()) + [
@@ -138,6 +138,35 @@ def test_voxel_clusters_are_the_same_clusters(voxel):
         kernels.voxel_clusters(np.array([3, 1], np.int64), np.array([1], np.int64))
     with pytest.raises(ValueError, match="positive steps"):
         kernels.voxel_clusters(cells, np.array([0], np.int64))
+
+
+@pytest.mark.parametrize("drop", [np.inf, 1.5, 0.1])
+def test_local_ground_is_the_same_ground(drop):
+    pts = scan(8)[:, :3] / 3.0  # cells of 1 m: sparse far out, crowded near the centre
+    pts[::97, 2] -= 5.0  # returns under the road, for the outlier rule
+    got, want = both(lambda: local_ground(pts, 1.0, 2, drop))
+    np.testing.assert_array_equal(got, want)
+    assert len(np.unique(got)) > 100
+    if np.isfinite(drop):  # the rule drops points, so the ground differs from the plain lowest point's
+        assert (got != local_ground(pts, 1.0, 2)).sum() > 100
+    with pytest.raises(ValueError, match="outside"):
+        kernels.local_ground(pts[:2], np.array([0, 9], np.int64), (3, 3), 1, 1.5)
+
+
+@pytest.mark.parametrize("reach", [0.2, 0.45])
+def test_attach_to_nearest_gives_the_same_objects(reach):
+    pts = scan(9)[:, :3] / 2.0  # crowded near the centre: loose points within reach of several objects
+    objects = (np.floor(pts[:, 0] / 0.7).astype(np.int64) % 7).astype(np.int32)
+    objects[np.random.default_rng(3).random(len(pts)) < 0.6] = -1
+    loose = np.flatnonzero(objects < 0)[::2]
+    got_ids, want_ids = objects.copy(), objects.copy()
+    got, want = both(lambda: attach_to_nearest(pts, loose, got_ids if kernels.enabled() else want_ids, reach))
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got_ids, want_ids)
+    assert 100 < got.sum() < len(loose)  # some attached, some not: a test that can fail
+    with pytest.raises(ValueError, match="outside the cloud"):
+        kernels.attach_nearest(pts, np.array([len(pts)]), np.zeros(1, np.int64), reach, np.zeros(1, np.int64),
+                               np.zeros(1, np.int32), 0.1, np.zeros((1, 2), np.int64), objects.copy())
 
 
 @pytest.mark.parametrize("window,k", [(5, 5), (3, 9), (7, 4)])

@@ -5,8 +5,8 @@
  * per pixel, residual or free-space value. The arithmetic is the numpy code's, in the same float32
  * operations and the same order (build with -ffp-contract=off: no fused multiply-adds), so that the
  * results are bit-identical; test/test_kernels.py checks that against the numpy functions. The
- * registration's sums, the connected regions of segments.py, the kNN vote of postprocess.py and autolabel's voxel
- * clusters and column rules (offline/objects.py) are here too (the vote uses GCC / Clang vector types; another
+ * registration's sums, the connected regions of segments.py, the kNN vote of postprocess.py and autolabel's local
+ * ground, voxel clusters, column rules and nearest-object attachment (offline/objects.py) are here too (the vote uses GCC / Clang vector types; another
  * compiler fails the optional build and numpy runs).
  *
  * Plain C with no Python or numpy headers: coordinates come as three float32 pointers with a common
@@ -26,7 +26,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 9
+#define MOS_KERNELS_ABI 10
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -562,6 +562,137 @@ void mos_attach_over(const int32_t *image, int32_t h, int32_t w, const uint8_t *
                 && (double)rise <= row_slope * (double)horizontal[p]) {
                 point_object[p] = point_object[b];
                 attached[p] = 1;
+            }
+        }
+    }
+}
+
+/* objects.local_ground's window over a rows x cols grid: per cell the smallest of the (2 radius + 1)^2 cells around
+ * it (+inf outside the grid), by rows then columns (the minimum is exact in any order). tmp: rows * cols floats. */
+static void window_min(const float *grid, int32_t rows, int32_t cols, int32_t radius, float *tmp, float *out) {
+    for (int32_t i = 0; i < rows; ++i) {
+        for (int32_t j = 0; j < cols; ++j) {
+            float m = INFINITY;
+            const int32_t j0 = j - radius < 0 ? 0 : j - radius, j1 = j + radius >= cols ? cols - 1 : j + radius;
+            for (int32_t jj = j0; jj <= j1; ++jj) m = fminf(m, grid[(int64_t)i * cols + jj]);
+            tmp[(int64_t)i * cols + j] = m;
+        }
+    }
+    for (int32_t i = 0; i < rows; ++i) {
+        const int32_t i0 = i - radius < 0 ? 0 : i - radius, i1 = i + radius >= rows ? rows - 1 : i + radius;
+        for (int32_t j = 0; j < cols; ++j) {
+            float m = INFINITY;
+            for (int32_t ii = i0; ii <= i1; ++ii) m = fminf(m, tmp[(int64_t)ii * cols + j]);
+            out[(int64_t)i * cols + j] = m;
+        }
+    }
+}
+
+/* objects.local_ground for n points (x, y, z with a common stride) whose cells (floor(x / cell), floor(y / cell),
+ * float32 as the numpy code) were moved to start at 0 and span rows x cols: per point the lowest point within
+ * radius cells of its own, leaving out (where use_drop) points more than `drop` below the lower quartile of their
+ * cell's window of cells' lowest points (the finite ones sorted, element (filled - 1) / 4). cell_of: n int64
+ * (the points' flat cells, given), grid: 3 * rows * cols floats of scratch, window: (2 radius + 1)^2 floats. */
+void mos_local_ground(const float *z, int64_t stride, int64_t n, const int64_t *cell_of, int32_t rows, int32_t cols,
+                      int32_t radius, int32_t use_drop, float drop, float *grid, float *window, float *out) {
+    const int64_t ncells = (int64_t)rows * cols;
+    float *lowest = grid, *tmp = grid + ncells, *ground = grid + 2 * ncells;
+    for (int64_t c = 0; c < ncells; ++c) lowest[c] = INFINITY;
+    for (int64_t p = 0; p < n; ++p) lowest[cell_of[p]] = fminf(lowest[cell_of[p]], z[p * stride]);
+    int64_t dropped = 0;
+    if (use_drop) {
+        /* ground[] holds each occupied cell's quartile minus drop for now */
+        for (int64_t c = 0; c < ncells; ++c) ground[c] = NAN;
+        for (int64_t p = 0; p < n; ++p) {
+            const int64_t c = cell_of[p];
+            if (ground[c] != ground[c]) {
+                const int32_t i = (int32_t)(c / cols), j = (int32_t)(c % cols);
+                int32_t filled = 0;
+                for (int32_t ii = i - radius; ii <= i + radius; ++ii) {
+                    if (ii < 0 || ii >= rows) continue;
+                    for (int32_t jj = j - radius; jj <= j + radius; ++jj) {
+                        if (jj < 0 || jj >= cols) continue;
+                        const float v = lowest[(int64_t)ii * cols + jj];
+                        if (v < INFINITY) {  /* insertion sort of the finite values */
+                            int32_t k = filled++;
+                            while (k > 0 && window[k - 1] > v) {
+                                window[k] = window[k - 1];
+                                --k;
+                            }
+                            window[k] = v;
+                        }
+                    }
+                }
+                ground[c] = window[(filled > 0 ? filled - 1 : 0) / 4] - drop;
+            }
+            if (!(z[p * stride] >= ground[c])) ++dropped;
+        }
+        if (dropped) {  /* the cells' lowest points again, without the dropped ones */
+            float *kept_lowest = tmp;
+            for (int64_t c = 0; c < ncells; ++c) kept_lowest[c] = INFINITY;
+            for (int64_t p = 0; p < n; ++p) {
+                const int64_t c = cell_of[p];
+                if (z[p * stride] >= ground[c]) kept_lowest[c] = fminf(kept_lowest[c], z[p * stride]);
+            }
+            memcpy(lowest, kept_lowest, (size_t)ncells * sizeof(float));
+        }
+    }
+    window_min(lowest, rows, cols, radius, tmp, ground);
+    for (int64_t p = 0; p < n; ++p) out[p] = ground[cell_of[p]];
+}
+
+/* objects._cell_keys for one cell: clipped to +-(2^20 - 1), moved to be positive and packed. */
+#define MOS_CELL_OFFSET ((int64_t)1 << 20)
+#define MOS_CELL_SPAN ((int64_t)1 << 21)
+static inline int64_t cell_key(int64_t i, int64_t j) {
+    i = i < 1 - MOS_CELL_OFFSET ? 1 - MOS_CELL_OFFSET : (i > MOS_CELL_OFFSET - 1 ? MOS_CELL_OFFSET - 1 : i);
+    j = j < 1 - MOS_CELL_OFFSET ? 1 - MOS_CELL_OFFSET : (j > MOS_CELL_OFFSET - 1 ? MOS_CELL_OFFSET - 1 : j);
+    return (i + MOS_CELL_OFFSET) * MOS_CELL_SPAN + (j + MOS_CELL_OFFSET);
+}
+
+/* The first index of the sorted keys[0..n) whose key is at least `key` (n where none). */
+static inline int64_t lower_bound(const int64_t *keys, int64_t n, int64_t key) {
+    int64_t lo = 0, hi = n;
+    while (lo < hi) {
+        const int64_t mid = lo + (hi - lo) / 2;
+        if (keys[mid] < key) lo = mid + 1;
+        else hi = mid;
+    }
+    return lo;
+}
+
+/* The index of key in the sorted keys[0..n), -1 where absent. */
+static inline int64_t find_key(const int64_t *keys, int64_t n, int64_t key) {
+    const int64_t at = lower_bound(keys, n, key);
+    return at < n && keys[at] == key ? at : -1;
+}
+
+/* objects.attach_to_nearest after its object cells: each of the m points `loose` (indices into x, y with a common
+ * stride) whose `reach`-sized cell is one of, or beside one of, the objects' `reach`-sized cells `near` (sorted
+ * keys) takes the owner of the first of the `s` (di, dj) `steps` (nearest first) from its `grid`-sized cell that is
+ * one of the objects' `grid`-sized cells `cells` (sorted keys, `owner` each). Cells as the numpy code's: the float32
+ * quotient's floor, keys by cell_key. */
+void mos_attach_nearest(const float *x, const float *y, int64_t stride, const int64_t *loose, int64_t m,
+                        const int64_t *near, int64_t nnear, float reach, const int64_t *cells, const int32_t *owner,
+                        int64_t ncells, float grid, const int64_t *steps, int32_t s, int32_t *point_object,
+                        uint8_t *attached) {
+    for (int64_t t = 0; t < m; ++t) {
+        const int64_t p = loose[t];
+        const float px = x[p * stride], py = y[p * stride];
+        const int64_t key = cell_key((int64_t)floorf(px / reach), (int64_t)floorf(py / reach));
+        int beside = 0;
+        for (int64_t di = -1; di <= 1 && !beside; ++di) {  /* a key in [key - 1, key + 1] on rows di */
+            const int64_t row = key + di * MOS_CELL_SPAN, at = lower_bound(near, nnear, row - 1);
+            beside = at < nnear && near[at] <= row + 1;
+        }
+        if (!beside) continue;
+        const int64_t i = (int64_t)floorf(px / grid), j = (int64_t)floorf(py / grid);
+        for (int32_t k = 0; k < s; ++k) {
+            const int64_t at = find_key(cells, ncells, cell_key(i + steps[2 * k], j + steps[2 * k + 1]));
+            if (at >= 0) {
+                point_object[p] = owner[at];
+                attached[p] = 1;
+                break;
             }
         }
     }

@@ -7,7 +7,8 @@ registration's normals, Gauss-Newton sums and loop (``registration.py``) are her
 numpy code to 1e-9 (double-precision sums in another order, ``test/test_registration.py``). The range image's
 connected regions (``segments.py``: the same labels) and the kNN vote (``postprocess.py``: the same labels,
 probabilities to 2e-7: float32 sums in another order, eight points at a time in vector lanes) are here as well, and
-so are autolabel's voxel clusters and column rules (``offline/objects.py``: the same cluster and object ids). The
+so are autolabel's local ground, voxel clusters, column rules and nearest-object attachment (``offline/objects.py``:
+the same ground heights, cluster and object ids). The
 extension is built by ``pip install`` (setup.py; it needs a C compiler). Where it is missing or stale, or
 with ``ROS2_MOS_KERNELS=0`` in the environment, :func:`enabled` is False and the numpy code runs instead;
 :func:`status` says which in one line (the node logs it, ``ros2-mos bench`` prints it).
@@ -29,7 +30,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 9
+ABI = 10
 
 
 
@@ -106,6 +107,12 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     lib.mos_attach_over.argtypes = [vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_double, ctypes.c_double,
                                     ctypes.c_int32, vp, vp]
     lib.mos_grow_regions.argtypes = [vp, vp, ctypes.c_int64, ctypes.c_double, vp, vp]
+    lib.mos_local_ground.restype = None
+    lib.mos_local_ground.argtypes = [vp, ctypes.c_int64, ctypes.c_int64, vp, ctypes.c_int32, ctypes.c_int32,
+                                     ctypes.c_int32, ctypes.c_int32, ctypes.c_float, vp, vp, vp]
+    lib.mos_attach_nearest.restype = None
+    lib.mos_attach_nearest.argtypes = [vp, vp, ctypes.c_int64, vp, ctypes.c_int64, vp, ctypes.c_int64, ctypes.c_float,
+                                       vp, vp, ctypes.c_int64, ctypes.c_float, vp, ctypes.c_int32, vp, vp]
     lib.mos_knn_vote.restype = None
     lib.mos_knn_vote.argtypes = [vp, vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_int64, ctypes.c_int32,
                                  ctypes.c_int32, vp, ctypes.c_float, ctypes.c_float, ctypes.c_int32, vp, vp]
@@ -412,6 +419,58 @@ def attach_over(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z:
     """``objects.attach_over`` as :func:`attach_below`; ``row_slope`` the rise's bound per metre of range."""
     return _attach("mos_attach_over", image, which, horizontal, z, point_object, float(steep), float(row_slope),
                    int(search))
+
+
+def local_ground(points: np.ndarray, cell_of: np.ndarray, shape: tuple[int, int], radius: int,
+                 outlier_drop: float) -> np.ndarray:
+    """``objects.local_ground`` after its grid: per point of ``points`` ((N, 3) float32) the ground height, the
+    points' flat cells ``cell_of`` (int64) on a grid of ``shape``; ``outlier_drop`` +inf for none."""
+    if points.dtype != np.float32 or points.ndim != 2 or points.shape[1] != 3 or len(cell_of) != len(points):
+        raise ValueError(f"local ground of float32 (N, 3) points and a cell each, got {points.dtype} {points.shape} "
+                         f"and {len(cell_of)} cells")
+    rows, cols = int(shape[0]), int(shape[1])
+    cells = np.ascontiguousarray(cell_of, dtype=np.int64)
+    if len(cells) and (cells.min() < 0 or cells.max() >= rows * cols):
+        raise ValueError(f"local ground: cells outside the {rows} x {cols} grid")
+    if not (radius >= 0 and rows > 0 and cols > 0) or np.isnan(outlier_drop):
+        raise ValueError(f"local ground: radius {radius}, grid {rows} x {cols}, outlier drop {outlier_drop}")
+    rows_z = np.ascontiguousarray(points)
+    grid = np.empty(3 * rows * cols, np.float32)
+    window = np.empty((2 * radius + 1) ** 2, np.float32)
+    out = np.empty(len(points), np.float32)
+    use_drop = bool(np.isfinite(outlier_drop))
+    assert _LIB is not None
+    _LIB.mos_local_ground(rows_z[:, 2:].ctypes.data, 3, len(points), cells.ctypes.data, rows, cols, int(radius),
+                          int(use_drop), _f32(outlier_drop) if use_drop else 0.0, grid.ctypes.data,
+                          window.ctypes.data, out.ctypes.data)
+    return out
+
+
+def attach_nearest(points: np.ndarray, loose: np.ndarray, near: np.ndarray, reach: float, cells: np.ndarray,
+                   owner: np.ndarray, grid: float, steps: np.ndarray, point_object: np.ndarray) -> np.ndarray:
+    """``objects.attach_to_nearest`` after its object cells, in place on ``point_object`` (int32): ``points`` (N, 3)
+    float32, ``loose`` indices, ``near`` the objects' sorted ``reach``-sized cell keys, ``cells`` their sorted
+    ``grid``-sized cell keys and ``owner`` each, ``steps`` (S, 2) nearest first; returns which were attached."""
+    n = len(point_object)
+    if (points.dtype != np.float32 or points.ndim != 2 or points.shape[1] != 3 or len(points) != n
+            or point_object.dtype != np.int32 or not point_object.flags.c_contiguous or len(cells) != len(owner)):
+        raise ValueError(f"nearest-object attachment of float32 (N, 3) points, int32 object ids and an owner per "
+                         f"cell, got {points.dtype} {points.shape}, {point_object.dtype}, {len(cells)} / {len(owner)}")
+    which = np.ascontiguousarray(loose, dtype=np.int64)
+    if len(which) and (which.min() < 0 or which.max() >= n):
+        raise ValueError("nearest-object attachment: loose points outside the cloud")
+    rows = np.ascontiguousarray(points)
+    near_keys = np.ascontiguousarray(near, dtype=np.int64)
+    keys = np.ascontiguousarray(cells, dtype=np.int64)
+    owners = np.ascontiguousarray(owner, dtype=np.int32)
+    offsets = np.ascontiguousarray(steps, dtype=np.int64)
+    attached = np.zeros(n, np.uint8)
+    assert _LIB is not None
+    _LIB.mos_attach_nearest(rows.ctypes.data, rows[:, 1:].ctypes.data, 3, which.ctypes.data, len(which),
+                            near_keys.ctypes.data, len(near_keys), _f32(reach), keys.ctypes.data, owners.ctypes.data,
+                            len(keys), _f32(grid), offsets.ctypes.data, len(offsets), point_object.ctypes.data,
+                            attached.ctypes.data)
+    return attached.view(bool)
 
 
 def grow_regions(seeds: np.ndarray, regions: np.ndarray, seed_fraction: float) -> np.ndarray:

@@ -154,6 +154,8 @@ def local_ground(points: np.ndarray, cell: float, radius: int, outlier_drop: flo
     ij = np.floor(points[:, :2] / cell).astype(np.int64)
     ij -= ij.min(axis=0)
     shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1)
+    if kernels.enabled() and points.dtype == np.float32:
+        return kernels.local_ground(points, ij[:, 0] * shape[1] + ij[:, 1], shape, radius, outlier_drop)
     z = points[:, 2].astype(np.float32)
     lowest = _cell_lowest(ij, z, shape)
     if not np.isfinite(outlier_drop):
@@ -568,17 +570,24 @@ def attach_to_nearest(points: np.ndarray, loose: np.ndarray, point_object: np.nd
     attached = np.zeros(len(points), bool)
     if len(on_object) == 0 or len(loose) == 0:
         return attached
-    # Only loose points in or beside an object's cell of ``reach`` metres can be that close to one.
-    loose = loose[np.isin(_top_cells(points, loose, reach), _cells_around(_top_cells(points, on_object, reach)))]
-    if len(loose) == 0:
-        return attached
+    # Only loose points in or beside an object's cell of ``reach`` metres can be that close to one (the kernel
+    # checks that itself, point by point).
+    compiled = kernels.enabled() and points.dtype == np.float32 and point_object.dtype == np.int32
+    object_cells = _top_cells(points, on_object, reach)
+    if not compiled:
+        loose = loose[np.isin(_top_cells(points, loose, reach), _cells_around(object_cells))]
     cells, first = np.unique(_top_cells(points, on_object, ATTACH_GRID), return_index=True)
     owner = point_object[on_object[first]]
-    loose_ij = np.floor(points[loose, :2] / ATTACH_GRID).astype(np.int64)
     r = int(np.ceil(reach / ATTACH_GRID))
     steps = np.array([(di, dj) for di in range(-r, r + 1) for dj in range(-r, r + 1)
                       if np.hypot(di, dj) * ATTACH_GRID <= reach + 1e-9])
     steps = steps[np.argsort(np.hypot(steps[:, 0], steps[:, 1]), kind="stable")]
+    if compiled:
+        return kernels.attach_nearest(points, loose, np.unique(object_cells), reach, cells, owner, ATTACH_GRID, steps,
+                                      point_object)
+    if len(loose) == 0:
+        return attached
+    loose_ij = np.floor(points[loose, :2] / ATTACH_GRID).astype(np.int64)
     todo = np.arange(len(loose))
     for step in steps:  # nearest first: a loose point goes to the object nearest to it
         keys = _cell_keys(loose_ij[todo] + step)
