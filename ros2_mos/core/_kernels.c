@@ -26,7 +26,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 10
+#define MOS_KERNELS_ABI 11
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -520,19 +520,27 @@ static inline int32_t next_return(const int32_t *image, int32_t h, int32_t w, in
 /* objects.attach_below over the h x w image of closest points (-1 empty), row by row from the top: a point
  * `chosen` takes the object of the next return above it where that is on one, rises over it at least `steep`
  * times their horizontal distance apart, and the point does not continue the ground of the return below it. The
- * numpy code's arithmetic: float32 differences, the two slopes in double, the ground step in float32. A row's
- * points read only rows above it, so one pass in place equals the numpy code's row-at-a-time update. */
+ * numpy code's arithmetic: float32 differences, the two slopes in double, the ground step in float32. With
+ * under > 0, a point lower than that return and behind it by at most `under` (horizontally) joins whatever the
+ * slope and the ground below. A row's points read only rows above it, so one pass in place equals the numpy
+ * code's row-at-a-time update. */
 void mos_attach_below(const int32_t *image, int32_t h, int32_t w, const uint8_t *chosen, const float *horizontal,
                       const float *z, double steep, double gentle, float ground_step, float ground_grade,
-                      int32_t search, int32_t *point_object, uint8_t *attached) {
+                      int32_t search, float under, int32_t *point_object, uint8_t *attached) {
     for (int32_t v = 1; v < h; ++v) {
         for (int32_t c = 0; c < w; ++c) {
             const int32_t p = image[(int64_t)v * w + c];
             if (p < 0 || !chosen[p]) continue;
             const int32_t a = next_return(image, h, w, v, c, -1, search);
             if (a < 0 || point_object[a] < 0) continue;
-            const float rise = z[a] - z[p];
-            if (!(rise > 0.0f) || !((double)rise >= steep * (double)fabsf(horizontal[a] - horizontal[p]))) continue;
+            const float rise = z[a] - z[p], behind = horizontal[p] - horizontal[a];
+            if (!(rise > 0.0f)) continue;
+            if (under > 0.0f && behind > 0.0f && behind <= under) {  /* under the object's face */
+                point_object[p] = point_object[a];
+                attached[p] = 1;
+                continue;
+            }
+            if (!((double)rise >= steep * (double)fabsf(behind))) continue;
             const int32_t b = next_return(image, h, w, v, c, 1, search);
             const int32_t bb = b < 0 ? 0 : b;
             const float step = z[p] - z[bb], apart = fabsf(horizontal[p] - horizontal[bb]);
