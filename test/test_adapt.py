@@ -66,17 +66,20 @@ def base(tmp_path_factory) -> tuple[Path, Path]:
     return root, model
 
 
-def _false_positives(model: Path, folder: Path) -> tuple[int, int]:
-    """(static points labelled moving, moving points found) over a drive."""
+def _false_positives(model: Path, folder: Path) -> tuple[int, int, int]:
+    """(static points labelled moving among the upper beams, where write_drive's noise is; among the others; moving
+    points found) over a drive."""
     pipe = MosPipeline(MosConfig(model=str(model)))
-    fp = tp = 0
+    fp_upper = fp_lower = tp = 0
     for frame in SemanticKittiSequence(folder):
         labels = pipe.process(frame.points, frame.remission, frame.timestamp, pose=frame.pose).labels
         gt = to_moving_classes(frame.labels)
-        fp += int((labels & (gt == 0)).sum())
+        upper = frame.points[:, 2] > np.linalg.norm(frame.points, axis=1) * np.sin(np.radians(-5.0))
+        fp_upper += int((labels & (gt == 0) & upper).sum())
+        fp_lower += int((labels & (gt == 0) & ~upper).sum())
         tp += int((labels & (gt == 1)).sum())
     pipe.close()
-    return fp, tp
+    return fp_upper, fp_lower, tp
 
 
 def test_adapting_to_noisier_upper_beams_cuts_the_false_positives_there(base, tmp_path):
@@ -91,11 +94,14 @@ def test_adapting_to_noisier_upper_beams_cuts_the_false_positives_there(base, tm
     assert out.is_file() and not out.with_name(out.name + ".partial").exists()
     assert 0.05 <= result.threshold <= 0.95
     test_drive = _drive(tmp_path / "test", "t", 40, noise=0.15, n=30)
-    fp_base, tp_base = _false_positives(model, test_drive)
-    fp_adapted, tp_adapted = _false_positives(out, test_drive)
+    fp_base, lower_base, tp_base = _false_positives(model, test_drive)
+    fp_adapted, lower_adapted, tp_adapted = _false_positives(out, test_drive)
     assert fp_base > 100, (fp_base, tp_base)  # the noise does fool the base model
     assert fp_adapted < 0.5 * fp_base, (fp_base, fp_adapted, tp_base, tp_adapted)
     assert tp_adapted > 0.5 * tp_base
+    # Below, the adapted model learns autolabel's convention that the road seen under a box's face through the 5 cm
+    # under it is the box's (ObjectConfig.attach_under): more false points there, but not many more.
+    assert lower_adapted < 3 * lower_base, (lower_base, lower_adapted)
     from ros2_mos.core.metadata import read_training_config
     from ros2_mos.training.export import read_metadata
 

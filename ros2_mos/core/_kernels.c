@@ -6,8 +6,8 @@
  * operations and the same order (build with -ffp-contract=off: no fused multiply-adds), so that the
  * results are bit-identical; test/test_kernels.py checks that against the numpy functions. The
  * registration's sums, the connected regions of segments.py, the kNN vote of postprocess.py and autolabel's local
- * ground, voxel clusters, column rules and nearest-object attachment (offline/objects.py) are here too (the vote uses GCC / Clang vector types; another
- * compiler fails the optional build and numpy runs).
+ * ground, voxel clusters, column rules and nearest-object attachment (offline/objects.py) are here too (the vote
+ * uses GCC / Clang vector types; another compiler fails the optional build and numpy runs).
  *
  * Plain C with no Python or numpy headers: coordinates come as three float32 pointers with a common
  * stride (3 for (N, 3) rows, 1 for planes), so no copy is made to call a kernel.

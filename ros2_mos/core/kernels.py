@@ -8,10 +8,10 @@ numpy code to 1e-9 (double-precision sums in another order, ``test/test_registra
 connected regions (``segments.py``: the same labels) and the kNN vote (``postprocess.py``: the same labels,
 probabilities to 2e-7: float32 sums in another order, eight points at a time in vector lanes) are here as well, and
 so are autolabel's local ground, voxel clusters, column rules and nearest-object attachment (``offline/objects.py``:
-the same ground heights, cluster and object ids). The
-extension is built by ``pip install`` (setup.py; it needs a C compiler). Where it is missing or stale, or
-with ``ROS2_MOS_KERNELS=0`` in the environment, :func:`enabled` is False and the numpy code runs instead;
-:func:`status` says which in one line (the node logs it, ``ros2-mos bench`` prints it).
+the same ground heights, cluster and object ids). The extension is built by ``pip install`` (setup.py; it needs a C
+compiler). Where it is missing or stale, or with ``ROS2_MOS_KERNELS=0`` in the environment, :func:`enabled` is False
+and the numpy code runs instead; :func:`status` says which in one line (the node logs it, ``ros2-mos bench`` prints
+it).
 
 ctypes releases the GIL for the call, so kernels on several threads (the residual pool) run in parallel.
 """
@@ -435,13 +435,13 @@ def local_ground(points: np.ndarray, cell_of: np.ndarray, shape: tuple[int, int]
         raise ValueError(f"local ground: cells outside the {rows} x {cols} grid")
     if not (radius >= 0 and rows > 0 and cols > 0) or np.isnan(outlier_drop):
         raise ValueError(f"local ground: radius {radius}, grid {rows} x {cols}, outlier drop {outlier_drop}")
-    rows_z = np.ascontiguousarray(points)
+    coords = np.ascontiguousarray(points)
     grid = np.empty(3 * rows * cols, np.float32)
     window = np.empty((2 * radius + 1) ** 2, np.float32)
     out = np.empty(len(points), np.float32)
     use_drop = bool(np.isfinite(outlier_drop))
     assert _LIB is not None
-    _LIB.mos_local_ground(rows_z[:, 2:].ctypes.data, 3, len(points), cells.ctypes.data, rows, cols, int(radius),
+    _LIB.mos_local_ground(coords[:, 2:].ctypes.data, 3, len(points), cells.ctypes.data, rows, cols, int(radius),
                           int(use_drop), _f32(outlier_drop) if use_drop else 0.0, grid.ctypes.data,
                           window.ctypes.data, out.ctypes.data)
     return out
