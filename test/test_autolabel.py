@@ -192,15 +192,18 @@ def test_a_ring_under_an_objects_face_joins_it_and_the_road_in_front_does_not(ge
                        at(7, 1.73 / np.tan(-pitch[7]))], np.float32)
     assert pixel_index(points, sensor).v.tolist() == [3, 4, 5, 6, 7]
 
-    def joined(under: float) -> list[int]:
+    def joined(under: float, under_ok: np.ndarray | None = None) -> list[int]:
         point_object = np.array([0, -1, -1, -1, -1], np.int32)
-        attached = attach_below(points, np.arange(1, 5), point_object, sensor, 70.0, under=under)
+        attached = attach_below(points, np.arange(1, 5), point_object, sensor, 70.0, under=under, under_ok=under_ok)
         assert attached.tolist() == [False] + [o >= 0 for o in point_object[1:]]
         return point_object.tolist()
 
     assert joined(0.0) == [0, 0, -1, -1, -1]  # the face ring by ring; the wheels' ring is not steep under it
     assert joined(0.6) == [0, 0, 0, -1, -1]  # 0.3 m behind the face: under it; the road in front is nearer
     assert joined(0.2) == [0, 0, -1, -1, -1]  # farther behind than allowed
+    # Only the points allowed to (find_objects: those clear of the local ground by attach_under_lift)
+    assert joined(0.6, np.array([True, True, False, True, True])) == [0, 0, -1, -1, -1]
+    assert joined(0.6, np.array([False, False, True, False, False])) == [0, 0, 0, -1, -1]
 
 
 def test_a_stack_of_rings_over_an_object_joins_it_and_a_crown_far_above_it_does_not(geometry_code):

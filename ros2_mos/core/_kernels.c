@@ -26,7 +26,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 11
+#define MOS_KERNELS_ABI 12
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -522,11 +522,12 @@ static inline int32_t next_return(const int32_t *image, int32_t h, int32_t w, in
  * times their horizontal distance apart, and the point does not continue the ground of the return below it. The
  * numpy code's arithmetic: float32 differences, the two slopes in double, the ground step in float32. With
  * under > 0, a point lower than that return and behind it by at most `under` (horizontally) joins whatever the
- * slope and the ground below. A row's points read only rows above it, so one pass in place equals the numpy
- * code's row-at-a-time update. */
+ * slope and the ground below (only where under_ok[p], if under_ok is not NULL). A row's points read only rows
+ * above it, so one pass in place equals the numpy code's row-at-a-time update. */
 void mos_attach_below(const int32_t *image, int32_t h, int32_t w, const uint8_t *chosen, const float *horizontal,
                       const float *z, double steep, double gentle, float ground_step, float ground_grade,
-                      int32_t search, float under, int32_t *point_object, uint8_t *attached) {
+                      int32_t search, float under, const uint8_t *under_ok, int32_t *point_object,
+                      uint8_t *attached) {
     for (int32_t v = 1; v < h; ++v) {
         for (int32_t c = 0; c < w; ++c) {
             const int32_t p = image[(int64_t)v * w + c];
@@ -535,7 +536,7 @@ void mos_attach_below(const int32_t *image, int32_t h, int32_t w, const uint8_t 
             if (a < 0 || point_object[a] < 0) continue;
             const float rise = z[a] - z[p], behind = horizontal[p] - horizontal[a];
             if (!(rise > 0.0f)) continue;
-            if (under > 0.0f && behind > 0.0f && behind <= under) {  /* under the object's face */
+            if (under > 0.0f && behind > 0.0f && behind <= under && (!under_ok || under_ok[p])) {  /* under the face */
                 point_object[p] = point_object[a];
                 attached[p] = 1;
                 continue;

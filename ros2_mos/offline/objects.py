@@ -97,9 +97,13 @@ class ObjectConfig:
     #: m: a loose point also joins the object of the point just above it in its column where it lies lower than that
     #: point and behind it, seen from the sensor, by at most this much (0: not at all), however flat and whatever
     #: the ring below: the ray passed under the object's face to its recessed lower part (a car's wheels under its
-    #: bumper and body), which lies at the height of the road in front of it. The road seen under a car joins it too
-    #: (a few points a car on the real drives); farther behind (1 m) takes more road than wheels
+    #: bumper and body), which lies at the height of the road in front of it; farther behind (1 m) takes more road
+    #: than wheels ...
     attach_under: float = 0.6
+    #: m: ... where the point lies more than this above the local ground (0: wherever): the road seen under a car's
+    #: body is the ground itself, its wheels stand on it (a real road's rings lie up to 0.1 m over its local ground,
+    #: so some of the road under a car near the sensor still joins it)
+    attach_under_lift: float = 0.03
     #: Where the sensor's lowest beam cannot reach the ground (within ``|z| / tan(|fov_down|)`` of it: 6.5 m for a
     #: VLP-16 1.73 m up, 3.7 m for a HDL-64E), the local ground is the lowest ring of whatever stands there: where it
     #: lies more than ``ground_height`` above the plane through the local ground of the ``blind_ring`` metres just
@@ -116,7 +120,8 @@ class ObjectConfig:
 
     def __post_init__(self) -> None:
         check_numbers(self, "autolabel objects",
-                      zero_ok=("ground_radius", "attach_above", "ego_radius", "attach_steep", "attach_under"),
+                      zero_ok=("ground_radius", "attach_above", "ego_radius", "attach_steep", "attach_under",
+                               "attach_under_lift"),
                       at_most_one=("ego_share",))
         if self.attach_steep > 90:
             raise ConfigError(f"autolabel objects: attach_steep must be at most 90 degrees, got {self.attach_steep!r}")
@@ -389,8 +394,9 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
         image = closest_point_image(points, sensor)  # one range image for both column rules
         # down to the ground: in a blind spot the object's lowest ring is the "ground"
         column = (loose | low) & (point_object < 0)
+        lifted = height > config.attach_under_lift if config.attach_under_lift > 0 else None
         attached |= attach_below(points, np.flatnonzero(column), point_object, sensor, config.attach_steep, image,
-                                 config.attach_under)
+                                 config.attach_under, lifted)
         if config.attach_raised:
             raised = candidate[((bottom > config.max_bottom) & ~good)[cluster]]
             attached |= attach_over(points, raised, point_object, sensor, config.attach_steep, config.raised_rows,
@@ -456,13 +462,15 @@ def _compiled_columns(points: np.ndarray, which: np.ndarray, point_object: np.nd
 
 
 def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray, sensor: SensorConfig,
-                 steep: float, image: np.ndarray | None = None, under: float = 0.0) -> np.ndarray:
+                 steep: float, image: np.ndarray | None = None, under: float = 0.0,
+                 under_ok: np.ndarray | None = None) -> np.ndarray:
     """Give each of the points ``loose`` (indices; on no object) the object id of the next return above it in its
     range-image column where that return is on an object and the two lie on a surface at least ``steep`` degrees
     steep (height difference over horizontal distance), unless the point continues the ground of the return below
     it (:data:`GROUND_STEP`, :data:`GROUND_GRADE`, :data:`GROUND_STEEPEST`: the road at the foot of a car); and,
     with ``under`` > 0, where the point lies lower than that return and behind it seen from the sensor by at most
-    ``under`` metres (horizontally), whatever the slope and the ground below: under the object's face. Row by row
+    ``under`` metres (horizontally), whatever the slope and the ground below: under the object's face (only the
+    points ``under_ok``, per point, where given). Row by row
     from the top, so that a column of loose points under an object joins it ring by ring. Returns which points
     were given one. ``image``: the points' :func:`closest_point_image`, where the caller has it."""
     attached = np.zeros(len(points), bool)
@@ -472,7 +480,7 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
     image = _compiled_columns(points, loose, point_object, sensor, image)
     if image is not None:
         return kernels.attach_below(image, loose, horizontal, z, point_object, steep_slope, gentle_slope,
-                                    GROUND_STEP, GROUND_GRADE, COLUMN_SEARCH_ROWS, under)
+                                    GROUND_STEP, GROUND_GRADE, COLUMN_SEARCH_ROWS, under, under_ok)
     for v, cols, image in _column_rows(points, loose, point_object, sensor, range(1, sensor.height), image):
         point, above, below = image[v, cols], _next_return(image, v, cols, -1), _next_return(image, v, cols, 1)
         has = above >= 0
@@ -480,6 +488,8 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
         rise = z[above] - z[point]
         behind = horizontal[point] - horizontal[above]
         beneath = (behind > 0) & (behind <= under) if under > 0 else np.zeros(len(point), bool)
+        if under_ok is not None:
+            beneath &= under_ok[point]
         on_face = (point_object[above] >= 0) & (rise > 0) & ((rise >= steep_slope * np.abs(behind)) | beneath)
         b = np.maximum(below, 0)
         step, apart = z[point] - z[b], np.abs(horizontal[point] - horizontal[b])
