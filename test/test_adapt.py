@@ -94,14 +94,14 @@ def test_adapting_to_noisier_upper_beams_cuts_the_false_positives_there(base, tm
     assert out.is_file() and not out.with_name(out.name + ".partial").exists()
     assert 0.05 <= result.threshold <= 0.95
     test_drive = _drive(tmp_path / "test", "t", 40, noise=0.15, n=30)
-    fp_base, lower_base, tp_base = _false_positives(model, test_drive)
-    fp_adapted, lower_adapted, tp_adapted = _false_positives(out, test_drive)
-    assert fp_base > 100, (fp_base, tp_base)  # the noise does fool the base model
-    assert fp_adapted < 0.5 * fp_base, (fp_base, fp_adapted, tp_base, tp_adapted)
+    upper_base, lower_base, tp_base = _false_positives(model, test_drive)
+    upper_adapted, lower_adapted, tp_adapted = _false_positives(out, test_drive)
+    assert upper_base > 100, (upper_base, tp_base)  # the noise does fool the base model
+    counts = (upper_base, lower_base, upper_adapted, lower_adapted, tp_base, tp_adapted)
+    assert upper_adapted + lower_adapted < 0.5 * (upper_base + lower_base), counts
+    # Fewer where the noise is; not many more elsewhere (what autolabel labels moving, the adapted model learns)
+    assert upper_adapted < upper_base and lower_adapted < 1.5 * lower_base, counts
     assert tp_adapted > 0.5 * tp_base
-    # Below, the adapted model learns autolabel's convention that the road seen under a box's face through the 5 cm
-    # under it is the box's (ObjectConfig.attach_under): more false points there, but not many more.
-    assert lower_adapted < 3 * lower_base, (lower_base, lower_adapted)
     from ros2_mos.core.metadata import read_training_config
     from ros2_mos.training.export import read_metadata
 
