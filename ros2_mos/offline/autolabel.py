@@ -512,8 +512,14 @@ class AutoLabeler:
             before = np.maximum(index - cfg.instant_span, 0)
             after = np.minimum(index + cfg.instant_span, m - 1)
             dt = np.maximum(t[after] - t[before], 1e-3)
+
+            def rate(shift: np.ndarray) -> np.ndarray:  # m/s over each observation's span; 0 where it has none
+                return np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
+
             told = np.array([o.online >= CUE_MOVING_NOW for o in obs])
-            if cfg.instant_motion == "box":
+            centroid = np.array([o.centroid[:2] for o in obs])
+            box = cfg.instant_motion == "box"
+            if box:
                 lo = np.array([o.lo[:2] for o in obs])
                 hi = np.array([o.hi[:2] for o in obs])
                 cut_lo = cut_hi = None
@@ -524,20 +530,16 @@ class AutoLabeler:
                 context = np.ones(m, bool)
                 labelled = reshaped(lo[before], hi[before], lo[after], hi[after], cfg.instant_cue_reshape) & told
             else:
-                c = np.array([o.centroid[:2] for o in obs])
-                shift = c[after] - c[before]
+                shift = centroid[after] - centroid[before]
                 seen = np.flatnonzero([result.tracker.seen_through(o) for o in obs])
                 context = (np.abs(index[:, None] - seen[None, :]) <= cfg.instant_context).any(axis=1) if len(seen) \
                     else np.zeros(m, bool)
                 labelled = np.zeros(m, bool)
-            speed = np.where(after > before, np.linalg.norm(shift, axis=1) / dt, 0.0)
+            speed = rate(shift)
             near = np.array([o.near >= cfg.instant_seen_through for o in obs])
-            box = cfg.instant_motion == "box"
             if box and cfg.instant_cue_centroid and model_right_where_it_stood(obs, speed, near):
-                c = np.array([o.centroid[:2] for o in obs])
-                travelled = np.where(after > before, np.linalg.norm(c[after] - c[before], axis=1) / dt, 0.0)
                 beside = np.array([o.distance < CUE_VIEW_DISTANCE for o in obs])
-                labelled |= (travelled >= cfg.instant_speed) & told & ~beside
+                labelled |= (rate(centroid[after] - centroid[before]) >= cfg.instant_speed) & told & ~beside
             moving = near | ((speed >= cfg.instant_speed) & context) | labelled
             out.update((o.scan, o.obj) for o, flag in zip(obs, moving) if flag)
         return out

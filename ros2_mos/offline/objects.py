@@ -470,9 +470,9 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
     it (:data:`GROUND_STEP`, :data:`GROUND_GRADE`, :data:`GROUND_STEEPEST`: the road at the foot of a car); and,
     with ``under`` > 0, where the point lies lower than that return and behind it seen from the sensor by at most
     ``under`` metres (horizontally), whatever the slope and the ground below: under the object's face (only the
-    points ``under_ok``, per point, where given). Row by row
-    from the top, so that a column of loose points under an object joins it ring by ring. Returns which points
-    were given one. ``image``: the points' :func:`closest_point_image`, where the caller has it."""
+    points ``under_ok``, per point, where given). Row by row from the top, so that a column of loose points under an
+    object joins it ring by ring. Returns which points were given one. ``image``: the points'
+    :func:`closest_point_image`, where the caller has it."""
     attached = np.zeros(len(points), bool)
     horizontal = np.hypot(points[:, 0], points[:, 1])
     z = points[:, 2]
