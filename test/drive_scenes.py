@@ -51,14 +51,16 @@ def static_street(walls: list[tuple[float, float, float, float]]) -> TriangleSou
 
 
 def write_drive(root: Path, n_scans: int, ego: Callable[[int], float], movers: list[Mover],
-                walls: list[tuple[float, float, float, float]], name: str = "scene", upper_noise: float = 0.0) -> Path:
-    """Render and write the drive (ego at (ego(k), 0), heading +x); returns the sequence folder.
+                walls: list[tuple[float, float, float, float]], name: str = "scene", upper_noise: float = 0.0,
+                sensor: SensorConfig = SENSOR) -> Path:
+    """Render and write the drive (ego at (ego(k), 0), heading +x) as ``sensor`` sees it; returns the sequence
+    folder.
 
     ``upper_noise``: the range of every return above -5 deg elevation gets Gaussian noise of this sigma (m), drawn
     anew in every scan (a sensor whose upper beams are noisier than the simulator's).
     """
     folder = root / "sequences" / name
-    lidar = Lidar(SENSOR, SensorEffects(range_sigma=0.0, dropout=0.0, grazing_dropout=0.0, far_dropout=0.0,
+    lidar = Lidar(sensor, SensorEffects(range_sigma=0.0, dropout=0.0, grazing_dropout=0.0, far_dropout=0.0,
                                         remission_sigma=0.0, ego_clearance=1.0))
     origin = np.zeros(3)
     static = SoupScene(static_street(walls), origin)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from drive_scenes import SENSOR, Mover, write_drive
 
+from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ConfigError, WorkerError
 from ros2_mos.io.labels import instance_ids
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence, write_poses
@@ -30,21 +31,32 @@ def pitched(angle_deg: float, z: float = 0.0) -> np.ndarray:
     return pose
 
 
-@pytest.fixture(scope="module")
-def street(tmp_path_factory) -> tuple[list[np.ndarray], np.ndarray]:
-    """Two scans of a static street 10 m apart: their points and true poses."""
-    folder = write_drive(tmp_path_factory.mktemp("street"), 11, lambda k: 1.0 * k, [], STREET)
+#: A sensor as dense as an HDL-64E: its registered scans are thinned at 1.5 m, the scenes' 32-row sensor's at 1 m
+DENSE = SensorConfig("scene64", 64, 2048, 3.0, -25.0, 0.0, 60.0)
+
+
+@pytest.fixture(scope="module", params=[SENSOR, DENSE], ids=lambda sensor: sensor.name)
+def street(request, tmp_path_factory) -> tuple[list[np.ndarray], np.ndarray, int]:
+    """Two scans of a static street 10 m apart: their points, true poses and the sensor's rows."""
+    folder = write_drive(tmp_path_factory.mktemp("street"), 11, lambda k: 1.0 * k, [], STREET, sensor=request.param)
     drive = list(FolderDrive(folder))
-    return [drive[0].points, drive[10].points], np.asarray(FolderDrive(folder).poses)[[0, 10]]
+    return [drive[0].points, drive[10].points], np.asarray(FolderDrive(folder).poses)[[0, 10]], request.param.height
 
 
 def test_config_is_checked():
     for bad in ({"voxel": 0.0}, {"voxel": float("nan")}, {"max_correspondence": float("inf")}, {"kernel": -1.0},
                 {"max_turn": float("nan")}, {"from_offset": -1}, {"iterations": 0}, {"min_points": 2.5},
-                {"map_points": 0}):
+                {"map_points": 0}, {"source_voxel": 0.0}, {"source_voxel": float("inf")}):
         with pytest.raises(ConfigError):
             PairRegistrationConfig(**bad)
     PairRegistrationConfig(from_offset=0)  # 0: no pair is registered
+
+
+def test_a_dense_sensor_s_registered_scan_is_thinned_more():
+    config = PairRegistrationConfig(voxel=1.0, source_voxel=1.5, dense_rows=64)
+    assert (config.source_voxel_for(128), config.source_voxel_for(64), config.source_voxel_for(32)) == (1.5, 1.5, 1.0)
+    with pytest.raises(ConfigError):
+        PairRegistrationConfig(dense_rows=2.5)
 
 
 def test_pose_change_in_metres_and_degrees():
@@ -52,9 +64,10 @@ def test_pose_change_in_metres_and_degrees():
 
 
 def test_a_drifted_relative_pose_is_registered_back_and_serves_the_pair_both_ways(street):
-    (points_a, points_b), (pose_a, pose_b) = street
+    (points_a, points_b), (pose_a, pose_b), rows = street
     drift = pitched(1.5, 0.4)  # what KISS-ICP's pitch and height drift does over a few seconds
-    pairs = PairRegistration()
+    pairs = PairRegistration(rows=rows)
+    assert pairs.source_voxel == (1.5 if rows == 64 else 1.0)
     pairs.register(0, points_a, pose_a, [(10, points_b, pose_b @ drift)])
     assert (pairs.registered, pairs.refused) == (1, 0)
     seen_from_a = pairs.viewpoint_pose(0, pose_a, 10)
@@ -72,7 +85,7 @@ def test_a_drifted_relative_pose_is_registered_back_and_serves_the_pair_both_way
 
 
 def test_a_refinement_beyond_its_bounds_or_without_points_keeps_kiss_icp_s_pose(street):
-    (points_a, points_b), (pose_a, pose_b) = street
+    (points_a, points_b), (pose_a, pose_b), _ = street
     drifted = pose_b @ pitched(1.5, 0.4)
     tight = PairRegistration(PairRegistrationConfig(max_shift=0.1))
     tight.register(0, points_a, pose_a, [(10, points_b, drifted)])
@@ -147,10 +160,12 @@ def test_pairs_are_registered_as_the_scans_arrive(drift_drive):
 def test_pairs_registered_in_a_process_of_their_own_are_the_pairs_registered_here(drift_drive):
     scans, poses = drift_drive
     config = PairRegistrationConfig()
-    assert type(PairRegistration.for_drive(config, OFFSETS, 12, own_process=False)) is PairRegistration
-    assert type(PairRegistration.for_drive(config, (-2, 2), 12, own_process=True)) is PairRegistration  # no pairs
-    here = PairRegistration(config, OFFSETS, 12)
-    there = PairRegistration.for_drive(config, OFFSETS, 12, own_process=True)
+    assert type(PairRegistration.for_drive(config, OFFSETS, 12, SENSOR.height, own_process=False)) is PairRegistration
+    no_pairs = PairRegistration.for_drive(config, (-2, 2), 12, SENSOR.height, own_process=True)
+    assert type(no_pairs) is PairRegistration
+    # the scenes' 32 rows, not the default 64: the process thins the scans as this one does
+    here = PairRegistration(config, OFFSETS, 12, SENSOR.height)
+    there = PairRegistration.for_drive(config, OFFSETS, 12, SENSOR.height, own_process=True)
     try:
         assert isinstance(there, PairRegistrationProcess)
         for k in range(10):
@@ -176,7 +191,7 @@ def test_pairs_registered_in_a_process_of_their_own_are_the_pairs_registered_her
 def test_the_registration_process_s_failure_is_one_error_here(drift_drive):
     scans, poses = drift_drive
     config = PairRegistrationConfig()
-    broken = PairRegistration.for_drive(config, OFFSETS, 12, own_process=True)
+    broken = PairRegistration.for_drive(config, OFFSETS, 12, SENSOR.height, own_process=True)
     try:
         for k in range(12):  # one scan's points are no (N, 3) array: the process fails and says how
             broken.add(k, scans[k][:, :2] if k == 11 else scans[k], poses[k])
@@ -184,7 +199,7 @@ def test_the_registration_process_s_failure_is_one_error_here(drift_drive):
             broken.wait_for(11)
     finally:
         broken.close()
-    killed = PairRegistration.for_drive(config, OFFSETS, 12, own_process=True)
+    killed = PairRegistration.for_drive(config, OFFSETS, 12, SENSOR.height, own_process=True)
     try:
         killed.add(0, scans[0], poses[0])
         killed._worker._process.kill()  # as the kernel's OOM killer would

@@ -383,7 +383,7 @@ class AutoLabeler:
         process of its own from ``processes_from`` scans on."""
         own = self.config.in_processes(n)
         offsets = (*self.config.near_offsets, *self.config.far_offsets)
-        pairs = PairRegistration.for_drive(self.config.pairs, offsets, n, own)
+        pairs = PairRegistration.for_drive(self.config.pairs, offsets, n, self.sensor.height, own)
         if self.cue_model is None:
             return pairs, None
         try:

@@ -5,12 +5,12 @@ at. It needs scan j's pose relative to scan k, and KISS-ICP's drifts over second
 benchmark-9102 (a terrain wave, which KISS-ICP follows with a pitch error of up to 4 degrees) its poses of scans 40
 apart are 0.34 m off on average and 1.1 m at worst, and parked cars 7 m away are "seen through" by scans 20-40
 away. Scans ``from_offset`` or more apart are therefore registered once more, one against the other: scan j's
-points (thinned to one per ``voxel``) against a voxel map of all of scan k's, starting from KISS-ICP's relative
-pose (KISS-ICP's own point-to-point ICP with its robust kernel). The refined pose serves the pair both ways (scan
-k seen from j, and j from k). A refinement that moves the pose farther than ``max_shift`` metres or ``max_turn``
-degrees, or that has too few points to hold it, is refused: KISS-ICP's pose stays. Registering only the points on
-no object (so that a car alongside cannot pull one scan onto the other) was measured and is worse
-(``benchmarks/autolabel.md``, round 28).
+points (thinned, :meth:`PairRegistrationConfig.source_voxel_for`) against a voxel map of all of scan k's, starting
+from KISS-ICP's relative pose (KISS-ICP's own point-to-point ICP with its robust kernel). The refined pose serves the
+pair both ways (scan k seen from j, and j from k). A refinement that moves the pose farther than ``max_shift``
+metres or ``max_turn`` degrees, or that has too few points to hold it, is refused: KISS-ICP's pose stays.
+Registering only the points on no object (so that a car alongside cannot pull one scan onto the other) was measured
+and is worse (``benchmarks/autolabel.md``, round 28).
 
 The pairs of a drive are registered as its scans arrive (:meth:`PairRegistration.add`): scan a against the later
 scans it is paired with, once the last of them has arrived. :class:`PairRegistrationProcess` does that in a process
@@ -37,7 +37,13 @@ class PairRegistrationConfig:
     #: Scans this many apart or more are registered to each other (0: none; scans nearer than this keep KISS-ICP's
     #: relative pose, which drifts little over a few scans).
     from_offset: int = 5
-    voxel: float = 1.0  # m: one point per voxel of the registered scan, and the map's voxel
+    voxel: float = 1.0  # m: the map's voxel
+    #: m: the registered scan of a sensor with ``dense_rows`` rows or more is thinned to one point per voxel of this
+    #: size (as KISS-ICP thins its source: 1.5 map voxels), a sparser sensor's to one per map ``voxel``: on a
+    #: 64-beam drive the pairs take 40 % less time and their poses are as good; a 16-beam scan thinned so far holds
+    #: them worse (benchmarks/autolabel.md, round 44)
+    source_voxel: float = 1.5
+    dense_rows: int = 64
     max_correspondence: float = 2.0  # m: farther pairs of points are not matched
     kernel: float = 0.3  # m: the robust (Geman-McClure) kernel's scale
     #: ICP stops at this many iterations, or where a step moves the pose less than ``convergence`` (the norm of
@@ -54,7 +60,11 @@ class PairRegistrationConfig:
 
     def __post_init__(self) -> None:
         check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points"),
-                      whole=("from_offset", "iterations", "min_points", "map_points"))
+                      whole=("from_offset", "iterations", "min_points", "map_points", "dense_rows"))
+
+    def source_voxel_for(self, rows: int) -> float:
+        """The voxel (m) the registered scans of a sensor with ``rows`` rows are thinned with."""
+        return self.source_voxel if rows >= self.dense_rows else self.voxel
 
 
 def pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
@@ -67,19 +77,21 @@ class PairRegistration:
     """Refined relative poses of the scan pairs a sliding window asks for; built once per drive.
 
     ``offsets``: the scan offsets the window looks at (the pairs a, a + o for each positive one that :meth:`wants`
-    are registered as the scans arrive, :meth:`add`); ``scans``: the drive's length.
+    are registered as the scans arrive, :meth:`add`); ``scans``: the drive's length; ``rows``: the sensor's rows
+    (:meth:`PairRegistrationConfig.source_voxel_for`).
     """
 
     def __init__(self, config: PairRegistrationConfig = PairRegistrationConfig(), offsets: tuple[int, ...] = (),
-                 scans: int = 0) -> None:
+                 scans: int = 0, rows: int = 64) -> None:
         from kiss_icp.registration import Registration
 
         self.config = config
+        self.source_voxel = config.source_voxel_for(rows)
         self._registration = Registration(max_num_iterations=config.iterations,
                                           convergence_criterion=config.convergence)
         #: (a, b) with a < b: scan b's pose in scan a's frame
         self._relative: dict[tuple[int, int], np.ndarray] = {}
-        self._thinned: dict[int, np.ndarray] = {}  # scan -> its points thinned to one per voxel
+        self._thinned: dict[int, np.ndarray] = {}  # scan -> its points thinned to one per source voxel
         self.refused = 0
         self.registered = 0
         self._later = sorted({o for o in offsets if o > 0 and self.wants(o)})  # the offsets of a's later scans
@@ -92,12 +104,12 @@ class PairRegistration:
         return self.config.from_offset > 0 and abs(offset) >= self.config.from_offset
 
     @classmethod
-    def for_drive(cls, config: PairRegistrationConfig, offsets: tuple[int, ...], scans: int,
+    def for_drive(cls, config: PairRegistrationConfig, offsets: tuple[int, ...], scans: int, rows: int,
                   own_process: bool) -> "PairRegistration":
-        """The registration of a drive of ``scans`` scans: with ``own_process`` in a process of its own
-        (:class:`PairRegistrationProcess`) where some pair is registered at all, else here."""
-        here = cls(config, offsets, scans)
-        return PairRegistrationProcess(config, offsets, scans) if own_process and here._later else here
+        """The registration of a drive of ``scans`` scans by a sensor of ``rows`` rows: with ``own_process`` in a
+        process of its own (:class:`PairRegistrationProcess`) where some pair is registered at all, else here."""
+        here = cls(config, offsets, scans, rows)
+        return PairRegistrationProcess(config, offsets, scans, rows) if own_process and here._later else here
 
     def add(self, index: int, points: np.ndarray, pose: np.ndarray) -> list[int]:
         """Scan ``index`` (the next of the drive: sensor-frame (N, 3) points, KISS-ICP world pose) has arrived;
@@ -147,7 +159,7 @@ class PairRegistration:
             start = inverse_a @ pose_b
             relative = start
             if b not in self._thinned:  # scan b is registered against up to len(offsets) earlier scans
-                self._thinned[b] = voxel_down_sample(np.asarray(points_b, np.float64), cfg.voxel)
+                self._thinned[b] = voxel_down_sample(np.asarray(points_b, np.float64), self.source_voxel)
             source = self._thinned[b]
             if voxel_map is not None and len(source) >= cfg.min_points:
                 refined = self._registration.align_points_to_map(source, voxel_map, start, cfg.max_correspondence,
@@ -181,9 +193,9 @@ class PairRegistrationProcess(PairRegistration):
     to as many scans ahead as the caller adds before waiting; an error there is raised here, in one line."""
 
     def __init__(self, config: PairRegistrationConfig = PairRegistrationConfig(), offsets: tuple[int, ...] = (),
-                 scans: int = 0) -> None:
-        super().__init__(config, offsets, scans)
-        self._worker = Worker("ros2_mos.offline.viewpoints:pair_server", (config, offsets, scans),
+                 scans: int = 0, rows: int = 64) -> None:
+        super().__init__(config, offsets, scans, rows)
+        self._worker = Worker("ros2_mos.offline.viewpoints:pair_server", (config, offsets, scans, rows),
                               "pair registration")
         self._added = 0
         self._known = 0  # scans whose pairs have come back
@@ -209,7 +221,7 @@ class PairRegistrationProcess(PairRegistration):
         self._worker.close(kill=self._known < self._scans)
 
 
-def pair_server(setup: tuple[PairRegistrationConfig, tuple[int, ...], int]) -> Callable[[Any], list[Any]]:
+def pair_server(setup: tuple[PairRegistrationConfig, tuple[int, ...], int, int]) -> Callable[[Any], list[Any]]:
     """The registration process's handler (:class:`~ros2_mos.core.worker.Worker`): a scan (index, points, pose) in,
     (scan registered, its pairs, registered, refused) out for each scan it let be registered."""
     pairs = PairRegistration(*setup)
