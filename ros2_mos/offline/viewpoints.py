@@ -40,8 +40,8 @@ class PairRegistrationConfig:
     voxel: float = 1.0  # m: the map's voxel
     #: m: the registered scan of a sensor with ``dense_rows`` rows or more is thinned to one point per voxel of this
     #: size (as KISS-ICP thins its source: 1.5 map voxels), a sparser sensor's to one per map ``voxel``: on a
-    #: 64-beam drive the pairs take 40 % less time and their poses are as good; a 16-beam scan thinned so far holds
-    #: them worse (benchmarks/autolabel.md, round 44)
+    #: 64-beam drive the pairs take 40 % less time, their poses a few millimetres farther from the truth; a 16-beam
+    #: scan thinned so far holds them worse (benchmarks/autolabel.md, round 44)
     source_voxel: float = 1.5
     dense_rows: int = 64
     max_correspondence: float = 2.0  # m: farther pairs of points are not matched
