@@ -317,6 +317,18 @@ def test_objects_keep_a_car_and_drop_a_building_and_the_ground():
     assert stray.height_above_ground[-1] == 0.0
 
 
+def test_a_far_car_seen_as_six_returns_is_an_object_and_five_returns_are_not():
+    # A sparse sensor sees a car 40 m away as two short ring pieces (benchmarks/autolabel.md, round 44: min_points 6)
+    rng = np.random.default_rng(1)
+    ground = np.column_stack([rng.uniform(30, 50, 3000), rng.uniform(-10, 10, 3000), np.zeros(3000)])
+    car = np.array([[40.0, y, z] for z in (0.6, 1.0) for y in (0.0, 0.3, 0.6)])
+    for returns, object_expected in ((6, True), (5, False)):
+        found = find_objects(np.vstack([ground, car[:returns]]).astype(np.float32))
+        ids = set(found.point_object[3000:].tolist())
+        assert (len(ids) == 1 and ids != {-1}) if object_expected else ids == {-1}
+        assert (found.point_object[:3000] == -1).all()
+
+
 def test_kerbs_flat_rings_low_down_and_the_sensor_s_own_vehicle_are_no_objects_but_a_van_beside_it_is():
     rng = np.random.default_rng(1)
     ground = np.column_stack([rng.uniform(-30, 30, 4000), rng.uniform(-30, 30, 4000), np.zeros(4000)])
