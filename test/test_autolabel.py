@@ -559,6 +559,23 @@ def test_a_track_is_cut_where_it_jumps_from_a_pedestrian_onto_the_parked_car_he_
         TrackConfig(jump_margin=float("inf"))
 
 
+def test_an_object_of_a_handful_of_returns_moves_with_its_track_but_its_own_seen_through_share_is_no_evidence():
+    from ros2_mos.offline.tracks import SEEN_THROUGH, Observation, Track, TrackConfig, Tracker
+
+    def track(tid: int, points: int) -> Track:  # ten observations, all half seen through, standing still
+        c = np.array([30.0, 3.0, 0.8])
+        return Track(tid, [Observation(k, 0, c, points, c - 1, c + 1, 0.5, 0.5) for k in range(10)])
+
+    tracker = Tracker(TrackConfig(evidence_points=8))
+    tracker.tracks = [track(0, 8), track(1, 7), track(2, 6)]
+    assert tracker.movers() == {0: SEEN_THROUGH}
+    tracker.tracks[1].observations[4].points = 12  # one observation of 12 points and another: two are evidence
+    tracker.tracks[1].observations[7].points = 9
+    assert tracker.movers() == {0: SEEN_THROUGH, 1: SEEN_THROUGH}
+    with pytest.raises(ConfigError):
+        TrackConfig(evidence_points=0)
+
+
 def test_a_track_never_seen_through_is_a_mover_when_the_online_model_labels_it_moving_often_enough():
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_THROUGH, Observation, Track, TrackConfig, Tracker

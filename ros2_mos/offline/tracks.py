@@ -47,6 +47,9 @@ class TrackConfig:
     max_missed: int = 5  # scans
     max_speed: float = 40.0  # m/s: faster velocity estimates are clipped
     seen_through: float = 0.3  # share of an observation's points seen through that makes it moving evidence
+    #: ... where it has this many points or more: an object of fewer returns (a car 30-40 m away seen by a sparse
+    #: sensor: ``ObjectConfig.min_points``) moves with its track, but the share of a handful seen through swings
+    evidence_points: int = 8
     min_moving_observations: int = 2
     moving_share: float = 0.2  # ... and at least this share of the track's observations,
     #: m: or fewer seen-through observations that lie this far apart (it waited long, then left) ...
@@ -410,9 +413,9 @@ class Tracker:
         return out
 
     def seen_through(self, obs: Observation) -> bool:
-        """Whether ``obs`` is moving evidence: at least ``seen_through`` of its points were seen through by a scan of
-        the window (its ``far`` share)."""
-        return obs.far >= self.config.seen_through
+        """Whether ``obs`` is moving evidence: at least ``seen_through`` of its points (``evidence_points`` or
+        more) were seen through by a scan of the window (its ``far`` share)."""
+        return obs.far >= self.config.seen_through and obs.points >= self.config.evidence_points
 
     def seen_moving(self, track: Track, cue: bool = False) -> bool:
         """Enough of the track's observations were seen through: a share of them, or fewer that lie apart (a car
