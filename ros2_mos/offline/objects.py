@@ -74,8 +74,8 @@ class ObjectConfig:
     ego_scans: int = 8  # ... the cars beside the sensor stand still in its frame too), and at least this many
     voxel: float = 0.4  # m
     #: a cluster of fewer points is a fragment, not an object: a sparse sensor sees a car 30-40 m away as 6-7 returns
-    #: (8 before round 44: validation VLP-32C 92.31 / 93.60 -> 93.02 / 93.79, VLP-16 86.07 -> 86.51; 4 cost VLP-16
-    #: precision, round 23)
+    #: (8 before round 44; 4 cost the VLP-16's precision; such small objects are no seen-through evidence of their
+    #: own, ``TrackConfig.evidence_points``: benchmarks/autolabel.md, round 44)
     min_points: int = 6
     max_length: float = 22.0  # m: a bus or a truck alongside still fits
     max_height: float = 4.5  # m
