@@ -1238,9 +1238,8 @@ def test_a_pedestrian_who_stops_beside_a_wall(tmp_path):
     seq, share, others, _ = label_scene(tmp_path, 50, lambda k: 0.0, [person], walls)
     assert share(12, 9, "instant") > 0.5
     assert share(45, 9, "semantickitti") > 0.5 and share(45, 9, "instant") < 0.1
-    wall_moving = sum(int((semantic_ids(seq[k].labels) == WALL).sum() and
-                          others(k, 9, "semantickitti")) for k in range(0, 50, 7))
-    assert wall_moving == 0
+    for k in range(0, 50, 7):  # the wall is seen, and nothing but the person moves: not the wall, not the road
+        assert (semantic_ids(seq[k].labels) == WALL).any() and others(k, 9, "semantickitti") == 0
 
 
 def test_a_parked_car_passed_closely_stays_static(tmp_path):
