@@ -1,0 +1,74 @@
+"""Maps cleaned by the online model against maps cleaned by autolabel's labels (issue 29, item 4).
+
+    python benchmarks/map_ghosts.py --data data/autolabel [--sensor hdl64] [--drives easy-9301 ...]
+
+For each of the suite's held-out drives (simulated into --data where missing; the same seeds as the suite): the
+raw map, the map cleaned by the shipped online model (``ros2-mos map DRIVE``: the pipeline's own KISS-ICP poses) and
+the map cleaned by ``ros2-mos autolabel``'s labels in each convention (``ros2-mos map DRIVE --labels OUT``:
+autolabel's poses over the whole drive). Prints per drive and map its ghost share (map points of objects the
+simulator labels moving under SemanticKITTI's convention, so a car that waited and left is a ghost) and the share of
+the raw map's static voxels the cleaned map keeps; the means over the drives last. 0.1 m voxels, 50 m, as ``map``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ros2_mos.apps.mapping import MappingConfig, MappingResult, build_maps, build_maps_from_labels, ghost_share
+from ros2_mos.core.config import MosConfig, sensor_preset
+from ros2_mos.core.inference import default_model_path
+from ros2_mos.io.conventions import CONVENTIONS
+from ros2_mos.offline.autolabel import AutolabelConfig, autolabel_drive
+from ros2_mos.offline.drives import FolderDrive
+from ros2_mos.scoring.suite import SIM_SEEDS, ensure_sim_sequences
+
+
+def figures(result: MappingResult) -> tuple[float, float, float]:
+    """Raw ghost %, cleaned ghost %, static voxels kept %."""
+    return (100 * ghost_share(result.raw), 100 * ghost_share(result.cleaned), 100 * result.builder.static_kept())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=Path, default=Path("data/autolabel"), help="root of the suite's drives")
+    parser.add_argument("--sensor", default="hdl64")
+    parser.add_argument("--drives", nargs="*", default=None, help="preset-seed (default: the suite's eight)")
+    parser.add_argument("--scans", type=int, default=100)
+    args = parser.parse_args()
+    sensor = sensor_preset(args.sensor)
+    root = args.data if args.sensor == "hdl64" else args.data / args.sensor
+    drives = ensure_sim_sequences(root, args.scans, SIM_SEEDS, print, args.sensor)
+    folders = [folder for _, name, folder in drives if not args.drives or name.rsplit("-", 1)[0] in args.drives]
+    config = MosConfig(model=str(default_model_path(args.sensor)))
+    mapping = MappingConfig()
+    print(f"maps cleaned online and by autolabel, {args.sensor}, {args.scans} scans a drive, "
+          f"{time.strftime('%Y-%m-%d')}; ghost % raw -> cleaned / static voxels kept %\n")
+    print("| drive | raw ghost % | online: ghost % / static kept % | " +
+          " | ".join(f"autolabel {c}: ghost % / static kept %" for c in CONVENTIONS) + " |")
+    print("|---|---:|---:|" + "---:|" * len(CONVENTIONS))
+    rows = []
+    for folder in folders:
+        drive = FolderDrive(folder)
+        raw, online_ghost, online_kept = figures(build_maps(drive, config, mapping))
+        row = [raw, online_ghost, online_kept]
+        for convention in CONVENTIONS:
+            with tempfile.TemporaryDirectory() as out:
+                autolabel_drive(drive, out, sensor, convention, AutolabelConfig())
+                _, ghost, kept = figures(build_maps_from_labels(drive, out, mapping))
+            row += [ghost, kept]
+        rows.append(row)
+        print(f"| {folder.name} | {raw:.2f} | {online_ghost:.2f} / {online_kept:.1f} | " +
+              " | ".join(f"{row[3 + 2 * i]:.2f} / {row[4 + 2 * i]:.1f}" for i in range(len(CONVENTIONS))) + " |",
+              flush=True)
+    mean = np.mean(rows, axis=0)
+    print(f"| mean of {len(rows)} | {mean[0]:.2f} | {mean[1]:.2f} / {mean[2]:.1f} | " +
+          " | ".join(f"{mean[3 + 2 * i]:.2f} / {mean[4 + 2 * i]:.1f}" for i in range(len(CONVENTIONS))) + " |")
+
+
+if __name__ == "__main__":
+    main()
