@@ -166,6 +166,32 @@ def test_a_column_under_an_object_joins_it_ring_by_ring_and_the_road_at_its_foot
     assert joined(45.0, points[:4]) == [0, 0, 0, 0]  # nothing below it: it joins
 
 
+def test_a_far_cars_lowest_ring_joins_it_however_far_below_the_road_ring_lies(geometry_code):
+    # A sparse sensor: 16 rows 1.875 degrees apart, 1.73 m over a flat road. A car 29.1 m ahead: its face in row 8
+    # (1.25 m up), its lowest ring in row 9 (0.30 m up); row 10 meets the road 21.1 m out, 8 m nearer. The lowest
+    # ring rises 0.30 m over that road ring: more than the ground step (0.15 m), so it is the car's, not the road
+    # continued (a step that grew by 3 % of the 8 m between them, 0.39 m, left it to the ground).
+    sensor = SensorConfig("column16", 16, 360, 15.0, -15.0, 0.0, 80.0)
+    pitch = np.radians(15.0 - 1.875 * (np.arange(16) + 0.5))
+
+    def at(row: int, x: float) -> list[float]:
+        return [x, 0.0, x * np.tan(pitch[row])]
+
+    road = 1.73 / np.tan(-pitch[10])
+    car = 1.43 / np.tan(-pitch[9])
+    points = np.array([at(8, car), at(9, car), at(10, road)], np.float32)
+    assert pixel_index(points, sensor).v.tolist() == [8, 9, 10]
+    assert road == pytest.approx(21.1, abs=0.05) and car == pytest.approx(29.1, abs=0.05)
+    point_object = np.array([0, -1, -1], np.int32)
+    attach_below(points, np.arange(1, 3), point_object, sensor, 70.0)
+    assert point_object.tolist() == [0, 0, -1]
+    # On a road that rises 0.1 m over those 8 m the ring is the road continued: not joined.
+    points[1, 2] = points[2, 2] + 0.1
+    point_object = np.array([0, -1, -1], np.int32)
+    attach_below(points, np.arange(1, 3), point_object, sensor, 70.0)
+    assert point_object.tolist() == [0, -1, -1]
+
+
 def test_a_ring_under_an_objects_face_joins_it_and_the_road_in_front_does_not(geometry_code):
     sensor = SensorConfig("column8", 8, 360, 3.0, -25.0, 0.0, 80.0)  # rows 3.5 degrees apart, as above
     pitch = np.radians(3.0 - 3.5 * (np.arange(8) + 0.5))

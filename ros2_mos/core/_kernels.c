@@ -26,7 +26,7 @@
 #endif
 
 /* Bumped whenever a signature changes: the loader refuses a stale build. */
-#define MOS_KERNELS_ABI 12
+#define MOS_KERNELS_ABI 13
 
 int mos_kernels_abi(void) { return MOS_KERNELS_ABI; }
 
@@ -525,9 +525,8 @@ static inline int32_t next_return(const int32_t *image, int32_t h, int32_t w, in
  * slope and the ground below (only where under_ok[p], if under_ok is not NULL). A row's points read only rows
  * above it, so one pass in place equals the numpy code's row-at-a-time update. */
 void mos_attach_below(const int32_t *image, int32_t h, int32_t w, const uint8_t *chosen, const float *horizontal,
-                      const float *z, double steep, double gentle, float ground_step, float ground_grade,
-                      int32_t search, float under, const uint8_t *under_ok, int32_t *point_object,
-                      uint8_t *attached) {
+                      const float *z, double steep, double gentle, float ground_step, int32_t search,
+                      float under, const uint8_t *under_ok, int32_t *point_object, uint8_t *attached) {
     for (int32_t v = 1; v < h; ++v) {
         for (int32_t c = 0; c < w; ++c) {
             const int32_t p = image[(int64_t)v * w + c];
@@ -545,8 +544,7 @@ void mos_attach_below(const int32_t *image, int32_t h, int32_t w, const uint8_t 
             const int32_t b = next_return(image, h, w, v, c, 1, search);
             const int32_t bb = b < 0 ? 0 : b;
             const float step = z[p] - z[bb], apart = fabsf(horizontal[p] - horizontal[bb]);
-            const float flat = ground_step + ground_grade * apart;
-            const double limit = fmin((double)flat, gentle * (double)apart);
+            const double limit = fmin((double)ground_step, gentle * (double)apart);
             if (b >= 0 && (double)step <= limit) continue;  /* the ground at the object's foot */
             point_object[p] = point_object[a];
             attached[p] = 1;

@@ -30,7 +30,7 @@ import numpy as np
 from ros2_mos.core.config import SensorConfig
 
 #: Must equal MOS_KERNELS_ABI in _kernels.c: a library built from an older source is not used.
-ABI = 12
+ABI = 13
 
 
 
@@ -102,7 +102,7 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     lib.mos_voxel_clusters.argtypes = [vp, ctypes.c_int64, vp, ctypes.c_int32, vp, vp, vp]
     lib.mos_attach_below.restype = None
     lib.mos_attach_below.argtypes = [vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_double, ctypes.c_double,
-                                     ctypes.c_float, ctypes.c_float, ctypes.c_int32, ctypes.c_float, vp, vp, vp]
+                                     ctypes.c_float, ctypes.c_int32, ctypes.c_float, vp, vp, vp]
     lib.mos_attach_over.restype = None
     lib.mos_attach_over.argtypes = [vp, ctypes.c_int32, ctypes.c_int32, vp, vp, vp, ctypes.c_double, ctypes.c_double,
                                     ctypes.c_int32, vp, vp]
@@ -406,8 +406,8 @@ def _attach(function: str, image: np.ndarray, which: np.ndarray, horizontal: np.
 
 
 def attach_below(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,
-                 point_object: np.ndarray, steep: float, gentle: float, ground_step: float, ground_grade: float,
-                 search: int, under: float = 0.0, under_ok: np.ndarray | None = None) -> np.ndarray:
+                 point_object: np.ndarray, steep: float, gentle: float, ground_step: float, search: int,
+                 under: float = 0.0, under_ok: np.ndarray | None = None) -> np.ndarray:
     """``objects.attach_below`` over the closest points' ``image`` (int32), in place on ``point_object`` (int32);
     ``horizontal`` and ``z`` float32 per point, ``steep`` and ``gentle`` the slopes, ``under`` the depth under a
     face (0: none), ``under_ok`` per point whether it may join so (None: all); returns which were attached."""
@@ -417,7 +417,7 @@ def attach_below(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z
         if ok.shape != point_object.shape:
             raise ValueError(f"column attachment: {len(ok)} under_ok flags for {len(point_object)} points")
     return _attach("mos_attach_below", image, which, horizontal, z, point_object, float(steep), float(gentle),
-                   _f32(ground_step), _f32(ground_grade), int(search), _f32(under), _ptr(ok))
+                   _f32(ground_step), int(search), _f32(under), _ptr(ok))
 
 
 def attach_over(image: np.ndarray, which: np.ndarray, horizontal: np.ndarray, z: np.ndarray,

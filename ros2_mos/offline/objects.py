@@ -413,9 +413,10 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
 #: unevenly over its image's rows)
 COLUMN_SEARCH_ROWS = 3
 #: :func:`attach_below`: a point continues the ground of the ring below it in its column (the road at a car's foot)
-#: where it rises at most this many metres over it, plus this share of the distance between them, ...
+#: where it rises at most this many metres over it, however far apart the two lie: a sparse sensor's rings meet the
+#: road metres apart, and a car's lowest ring a few tenths of a metre up would continue the road below it as a
+#: gentle grade (one that grew with the distance between them left far cars' lowest rings to the ground) ...
 GROUND_STEP = 0.15
-GROUND_GRADE = 0.03
 #: ... and no steeper than this (degrees): a car's side rises steeply from ring to ring
 GROUND_STEEPEST = 20.0
 
@@ -470,7 +471,7 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
     """Give each of the points ``loose`` (indices; on no object) the object id of the next return above it in its
     range-image column where that return is on an object and the two lie on a surface at least ``steep`` degrees
     steep (height difference over horizontal distance), unless the point continues the ground of the return below
-    it (:data:`GROUND_STEP`, :data:`GROUND_GRADE`, :data:`GROUND_STEEPEST`: the road at the foot of a car); and,
+    it (:data:`GROUND_STEP`, :data:`GROUND_STEEPEST`: the road at the foot of a car); and,
     with ``under`` > 0, where the point lies lower than that return and behind it seen from the sensor by at most
     ``under`` metres (horizontally), whatever the slope and the ground below: under the object's face (only the
     points ``under_ok``, per point, where given). Row by row from the top, so that a column of loose points under an
@@ -483,7 +484,7 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
     image = _compiled_columns(points, loose, point_object, sensor, image)
     if image is not None:
         return kernels.attach_below(image, loose, horizontal, z, point_object, steep_slope, gentle_slope,
-                                    GROUND_STEP, GROUND_GRADE, COLUMN_SEARCH_ROWS, under, under_ok)
+                                    GROUND_STEP, COLUMN_SEARCH_ROWS, under, under_ok)
     for v, cols, image in _column_rows(points, loose, point_object, sensor, range(1, sensor.height), image):
         point, above, below = image[v, cols], _next_return(image, v, cols, -1), _next_return(image, v, cols, 1)
         has = above >= 0
@@ -496,7 +497,7 @@ def attach_below(points: np.ndarray, loose: np.ndarray, point_object: np.ndarray
         on_face = (point_object[above] >= 0) & (rise > 0) & ((rise >= steep_slope * np.abs(behind)) | beneath)
         b = np.maximum(below, 0)
         step, apart = z[point] - z[b], np.abs(horizontal[point] - horizontal[b])
-        on_ground = (below >= 0) & (step <= np.minimum(GROUND_STEP + GROUND_GRADE * apart, gentle_slope * apart))
+        on_ground = (below >= 0) & (step <= np.minimum(GROUND_STEP, gentle_slope * apart))
         join = on_face & (~on_ground | beneath)
         point_object[point[join]] = point_object[above[join]]
         attached[point[join]] = True
