@@ -33,6 +33,12 @@ def figures(result: MappingResult) -> tuple[float, float, float]:
     return (100 * ghost_share(result.raw), 100 * ghost_share(result.cleaned), 100 * result.builder.static_kept())
 
 
+def cells(row: list[float]) -> str:
+    """A table row's figures: raw ghost %, then ghost % / static kept % for the online model and each convention."""
+    pairs = [f"{row[1 + 2 * i]:.2f} / {row[2 + 2 * i]:.1f}" for i in range(1 + len(CONVENTIONS))]
+    return f"{row[0]:.2f} | " + " | ".join(pairs) + " |"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=Path("data/autolabel"), help="root of the suite's drives")
@@ -44,6 +50,9 @@ def main() -> None:
     root = args.data if args.sensor == "hdl64" else args.data / args.sensor
     drives = ensure_sim_sequences(root, args.scans, SIM_SEEDS, print, args.sensor)
     folders = [folder for _, name, folder in drives if not args.drives or name.rsplit("-", 1)[0] in args.drives]
+    if not folders:
+        names = ", ".join(name for _, name, _ in drives)
+        parser.error(f"--drives {' '.join(args.drives)}: none of the suite's drives ({names}); give preset-seed")
     config = MosConfig(model=str(default_model_path(args.sensor)))
     mapping = MappingConfig()
     print(f"maps cleaned online and by autolabel, {args.sensor}, {args.scans} scans a drive, "
@@ -62,12 +71,8 @@ def main() -> None:
                 _, ghost, kept = figures(build_maps_from_labels(drive, out, mapping))
             row += [ghost, kept]
         rows.append(row)
-        print(f"| {folder.name} | {raw:.2f} | {online_ghost:.2f} / {online_kept:.1f} | " +
-              " | ".join(f"{row[3 + 2 * i]:.2f} / {row[4 + 2 * i]:.1f}" for i in range(len(CONVENTIONS))) + " |",
-              flush=True)
-    mean = np.mean(rows, axis=0)
-    print(f"| mean of {len(rows)} | {mean[0]:.2f} | {mean[1]:.2f} / {mean[2]:.1f} | " +
-          " | ".join(f"{mean[3 + 2 * i]:.2f} / {mean[4 + 2 * i]:.1f}" for i in range(len(CONVENTIONS))) + " |")
+        print(f"| {folder.name} | {cells(row)}", flush=True)
+    print(f"| mean of {len(rows)} | {cells(list(np.mean(rows, axis=0)))}")
 
 
 if __name__ == "__main__":
