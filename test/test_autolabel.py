@@ -103,6 +103,7 @@ def test_voxel_clusters_in_groups_never_join_across_groups(geometry_code):
     assert grouped[4] not in (grouped[0], grouped[2])
 
 
+
 def test_loose_points_go_to_the_nearest_object_within_reach_seen_from_above(geometry_code):
     # Two objects (ids 0 and 1) whose nearest points lie at x = 0 and x = 2; low points beside them.
     points = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [2.0, 0.0, 1.0], [3.0, 0.0, 1.0],
@@ -1072,15 +1073,21 @@ def test_a_track_that_begins_where_a_mover_stood_hidden_is_that_mover_seen_again
         Track(14, [obs(60 + k, 0.0, 10.0) for k in range(10)]),
         # a bus again, but a mover on the online model's word only (its word on a parked car must not spread)
         *[Track(t.id, [dataclasses.replace(o, near=0.0, far=0.0) for o in t.observations]) for t in bus(15, 500.0)],
+        # a bus again; where it stood (z 0-3 m) the sensor, passing on, reveals a sign over it (z 3.5-5 m: beyond the
+        # 0.3 m margin) and the bus itself, each a new track
+        bus(17, 600.0)[0],
+        Track(18, [dataclasses.replace(obs(30 + k, 601.0, 605.0), lo=np.array([601.0, 5.7, 3.5]),
+                                       hi=np.array([605.0, 5.9, 5.0])) for k in range(20)]),
+        Track(19, [obs(30 + k, 606.0, 609.0) for k in range(20)]),
     ]
     tracker.tracks[8].observations = [dataclasses.replace(o, scan=o.scan + 12) for o in tracker.tracks[8].observations]
     movers = tracker.movers()
     assert movers == {0: SEEN_THROUGH, 2: SEEN_THROUGH, 4: SEEN_THROUGH, 7: SEEN_THROUGH, 10: SEEN_THROUGH,
-                      12: SEEN_THROUGH}
+                      12: SEEN_THROUGH, 17: SEEN_THROUGH}
     movers.update(tracker.handovers(movers))
     assert movers[9] == WAITED
     movers[15] = ONLINE_MODEL
-    assert tracker.resumptions(movers) == {1: RESUMED, 14: RESUMED}
+    assert tracker.resumptions(movers) == {1: RESUMED, 14: RESUMED, 19: RESUMED}  # not the sign (18)
     assert tracker.resumptions({**movers, 15: SEEN_THROUGH})[16] == RESUMED  # the same bus, by visibility
     still = Tracker(dataclasses.replace(config, resume_travel=0.0))
     still.tracks = tracker.tracks

@@ -148,8 +148,9 @@ class TrackConfig:
     #: scans: a track that begins within this many scans after a mover's track ended standing (its boxes over its last
     #: ``resume_stood_observations`` full views travelled ``resume_stood`` m or less, and over the whole track
     #: ``resume_travel`` m or more: it moved, then stood), its first ``resume_observations`` boxes within the box where
-    #: the mover stood (grown by ``handover_margin``), is that mover seen again: something passed between it and the
-    #: sensor, and its track broke (0: off; only a mover by visibility; :meth:`Tracker.resumptions`)
+    #: the mover stood (grown by ``handover_margin``) from above and at its heights, is that mover seen again:
+    #: something passed between it and the sensor, and its track broke (0: off; only a mover by visibility;
+    #: :meth:`Tracker.resumptions`)
     resume_scans: int = 20
     resume_stood: float = 0.3
     resume_travel: float = 1.0
@@ -642,13 +643,14 @@ class Tracker:
         Such a track begins 1 to ``resume_scans`` scans after a mover's track ended (one that visibility made a
         mover: the online model's word on a parked car, seen again, would spread its error; a track that waited
         before its mover, :meth:`handovers`, did not end standing), and its first ``resume_observations`` boxes lie
-        within the box where the mover stood as it ended (:meth:`_where_it_stood`, grown by ``handover_margin``).
-        The mover stood if its boxes over its last ``resume_stood_observations`` full views (before it was hidden bit
-        by bit) travelled ``resume_stood`` m or less (:func:`evidence_travel`): a car that drove on while hidden is
-        seen again elsewhere, and the parked car it passed, revealed where it drove by, lies beside its box, not
-        within it. It moved before it stood: its boxes over the whole track travelled ``resume_travel`` m or more (a
-        parked car seen through now and then, a mover by its share, never did; a track seen again is its mover's,
-        and needs no travel of its own)."""
+        within the box where the mover stood as it ended (:meth:`_where_it_stood`, grown by ``handover_margin``) seen
+        from above, and reach into its heights (grown as much): a sign or a tree's crown over where a car stood,
+        revealed as the sensor passes, is not the car. The mover stood if its boxes over its last
+        ``resume_stood_observations`` full views (before it was hidden bit by bit) travelled ``resume_stood`` m or
+        less (:func:`evidence_travel`): a car that drove on while hidden is seen again elsewhere, and the parked car
+        it passed, revealed where it drove by, lies beside its box, not within it. It moved before it stood: its
+        boxes over the whole track travelled ``resume_travel`` m or more (a parked car seen through now and then, a
+        mover by its share, never did; a track seen again is its mover's, and needs no travel of its own)."""
         cfg = self.config
         if cfg.resume_scans == 0 or not movers:
             return {}
@@ -669,7 +671,8 @@ class Tracker:
                     if b.id in movers or b.id in out:
                         continue
                     first = b.observations[:cfg.resume_observations]
-                    if all(bool(np.all(o.lo[:2] >= lo) and np.all(o.hi[:2] <= hi)) for o in first):
+                    if all(bool(np.all(o.lo[:2] >= lo[:2]) and np.all(o.hi[:2] <= hi[:2])
+                                and o.lo[2] <= hi[2] and o.hi[2] >= lo[2]) for o in first):
                         out[b.id] = RESUMED
                         todo.append(b.id)
         return out
@@ -682,7 +685,7 @@ class Tracker:
         return beginning
 
     def _where_it_stood(self, track: Track) -> tuple[np.ndarray, np.ndarray] | None:
-        """The top-view box where ``track`` stood as it ended: the boxes of its last observation and of the ones
+        """The box (x, y, z) where ``track`` stood as it ended: the boxes of its last observation and of the ones
         before it while it was hidden bit by bit (fewer points in each), together; None where its boxes over its last
         ``resume_stood_observations`` full views (up to the first one of those) travelled more than ``resume_stood``
         m: it was still moving."""
@@ -696,7 +699,7 @@ class Tracker:
                 evidence_travel(full, cfg.evidence_travel) > cfg.resume_stood:
             return None
         hidden = obs[start:]
-        return np.min([o.lo[:2] for o in hidden], axis=0), np.max([o.hi[:2] for o in hidden], axis=0)
+        return np.min([o.lo for o in hidden], axis=0), np.max([o.hi for o in hidden], axis=0)
 
     def _glimpse(self, first: Observation, lo: np.ndarray, hi: np.ndarray, beginning: list[Track],
                  movers: dict[int, str], waited: dict[int, str]) -> tuple[float, int]:
