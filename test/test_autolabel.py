@@ -31,6 +31,7 @@ from ros2_mos.offline.objects import (
     find_objects,
     local_ground,
     on_vehicle,
+    split_long_clusters,
     voxel_clusters,
 )
 from ros2_mos.offline.visibility import neighbourhood_min
@@ -102,6 +103,21 @@ def test_voxel_clusters_in_groups_never_join_across_groups(geometry_code):
     assert grouped[0] == grouped[1] and grouped[2] == grouped[3] and grouped[0] != grouped[2]
     assert grouped[4] not in (grouped[0], grouped[2])
 
+
+def test_a_cluster_too_long_is_cut_with_half_size_voxels_and_the_ids_stay_compact(geometry_code):
+    # Two cars 4.5 m long, 0.4 m apart bumper to bumper: one cluster with 0.4 m voxels (x 4.4-4.8 and 4.8-5.2 touch),
+    # 9.4 m long; cut with 0.2 m voxels (x 4.6-4.8 is free). A pedestrian stands apart, its cluster short.
+    x = np.arange(0.0, 4.55, 0.1)
+    car = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    pedestrian = np.array([[20.0, 0.0, 0.0], [20.0, 0.0, 0.3]])
+    pts = np.vstack([car, car + [4.9, 0.0, 0.0], pedestrian]).astype(np.float32)
+    n = len(car)
+    cluster = np.array([0] * (2 * n) + [1, 1])
+    assert voxel_clusters(pts[: 2 * n], 0.4).max() == 0  # the two cars are one cluster at 0.4 m
+    ids = split_long_clusters(pts, cluster, ObjectConfig(voxel=0.4, max_length=8.0))
+    # the pedestrian keeps the first id, the two cars are the next two, in the order of their voxels
+    assert ids.tolist() == [1] * n + [2] * n + [0, 0]
+    assert split_long_clusters(pts, cluster, ObjectConfig(voxel=0.4, max_length=10.0)).tolist() == cluster.tolist()
 
 
 def test_loose_points_go_to_the_nearest_object_within_reach_seen_from_above(geometry_code):

@@ -68,9 +68,28 @@ def test_deskewing_by_hand() -> None:
     -0.05 rad."""
     points = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [2.0, 0.0, 0.5]], np.float32)
     moved = deskew(points, np.array([0, 0, 0, 1.0, 0, 0]))
+    assert moved.dtype == np.float32 and moved.flags.c_contiguous  # rows: KISS-ICP copies other layouts slowly
     assert moved == pytest.approx(np.array([[-0.25, 1.0, 0.0], [0.25, -1.0, 0.0], [2.0, 0.0, 0.5]]), abs=1e-6)
     turned = deskew(points[:1], np.array([0, 0, 0.2, 0, 0, 0]))
     assert turned[0] == pytest.approx([np.sin(0.05), np.cos(0.05), 0.0], abs=1e-6)
+    # rolling 0.4 rad per sweep (about x): the left point turned by -0.1 rad about x
+    assert deskew(points[:1], np.array([0.4, 0, 0, 0, 0, 0]))[0] == pytest.approx(
+        [0.0, np.cos(0.1), -np.sin(0.1)], abs=1e-6)
+    # pitching 0.8 rad per sweep (about y): a point 45 degrees left of ahead (phase -0.125) turned by -0.1 rad about y
+    assert deskew(np.array([[1.0, 1.0, 0.0]], np.float32), np.array([0, 0.8, 0, 0, 0, 0]))[0] == pytest.approx(
+        [np.cos(0.1), 1.0, np.sin(0.1)], abs=1e-6)
+    # any axis and a translation: each point turned by its phase's share of the rotation (the rotation matrix of the
+    # axis-angle, by hand) and moved by its share of the translation
+    rng = np.random.default_rng(7)
+    cloud = rng.uniform(-20, 20, (50, 3)).astype(np.float32)
+    motion = np.array([0.03, -0.05, 0.2, 1.2, -0.3, 0.05])
+    angle = np.linalg.norm(motion[:3])
+    k = motion[:3] / angle
+    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    phase = -np.arctan2(cloud[:, 1].astype(np.float64), cloud[:, 0]) / (2 * np.pi)
+    want = [(np.eye(3) * np.cos(s * angle) + np.sin(s * angle) * cross + (1 - np.cos(s * angle)) * np.outer(k, k)) @ p
+            + s * motion[3:] for p, s in zip(cloud.astype(np.float64), phase)]
+    assert deskew(cloud, motion) == pytest.approx(np.array(want), abs=1e-5)
     assert deskew(points, np.zeros(6)) == pytest.approx(points)
     for bad in (np.zeros(5), np.array([0, 0, 0, np.nan, 0, 0])):
         with pytest.raises(ConfigError, match="motion"):

@@ -97,8 +97,9 @@ def deskew(points: np.ndarray, motion: np.ndarray, phase: np.ndarray | None = No
     if motion.shape != (6,) or not np.all(np.isfinite(motion)):
         raise ConfigError(f"deskew: motion must be 6 finite numbers, got {motion!r}")
     xyz = np.asarray(points[:, :3], np.float64)
+    columns = np.ascontiguousarray(xyz.T)  # x, y, z, each contiguous: numpy is slow on the short axis of (N, 3)
     if phase is None:
-        phase = sweep_phase(xyz)
+        phase = sweep_phase(columns.T)
     else:
         phase = np.asarray(phase, np.float64)
         if phase.shape != (len(xyz),) or not np.all(np.isfinite(phase)):
@@ -106,11 +107,19 @@ def deskew(points: np.ndarray, motion: np.ndarray, phase: np.ndarray | None = No
                               f"{phase.shape}")
     omega, velocity = motion[:3], motion[3:]
     angle = float(np.linalg.norm(omega))
-    out = xyz + phase[:, None] * velocity[None, :]
-    if angle > 0:
+    out = phase[None, :] * velocity[:, None]
+    out += columns  # the point moved by its share of the translation ...
+    if angle > 0:  # ... and turned by its share of the rotation about the axis (Rodrigues)
         axis = omega / angle
         theta = phase * angle
-        cos, sin = np.cos(theta)[:, None], np.sin(theta)[:, None]
-        along = (xyz @ axis)[:, None] * axis[None, :]
-        out += xyz * (cos - 1.0) + np.cross(axis[None, :], xyz) * sin + along * (1.0 - cos)
-    return out.astype(np.float32)
+        cos, sin = np.cos(theta), np.sin(theta)
+        dot = xyz @ axis
+        for i, (j, k) in enumerate(((1, 2), (2, 0), (0, 1))):
+            turn = columns[i] * (cos - 1.0)
+            across = axis[j] * columns[k]  # (axis x point)[i]
+            across -= axis[k] * columns[j]
+            across *= sin
+            turn += across
+            turn += dot * axis[i] * (1.0 - cos)
+            out[i] += turn
+    return np.ascontiguousarray(out.T, np.float32)  # (N, 3) rows, as the callers (KISS-ICP above all) expect

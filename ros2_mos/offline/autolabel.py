@@ -475,7 +475,7 @@ class AutoLabeler:
             np.minimum.at(lo[:, i], obj, world[:, i])
             np.maximum.at(hi[:, i], obj, world[:, i])
         lo, hi = lo.astype(np.float64), hi.astype(np.float64)
-        ranges = np.linalg.norm(points[:, :3], axis=1)  # from the sensor
+        ranges = np.sqrt(np.einsum("ij,ij->i", points[:, :3], points[:, :3]))  # from the sensor
         reach = edge_reach(ranges[on_object], world, obj, lo, hi)
         online = np.zeros(n_objects) if labelled is None else \
             np.bincount(obj, labelled[on_object].astype(np.float64), n_objects) / counts
