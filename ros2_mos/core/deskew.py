@@ -113,13 +113,14 @@ def deskew(points: np.ndarray, motion: np.ndarray, phase: np.ndarray | None = No
         axis = omega / angle
         theta = phase * angle
         cos, sin = np.cos(theta), np.sin(theta)
+        cos_less_one, one_less_cos = cos - 1.0, 1.0 - cos
         dot = xyz @ axis
         for i, (j, k) in enumerate(((1, 2), (2, 0), (0, 1))):
-            turn = columns[i] * (cos - 1.0)
+            turn = columns[i] * cos_less_one
             across = axis[j] * columns[k]  # (axis x point)[i]
             across -= axis[k] * columns[j]
             across *= sin
             turn += across
-            turn += dot * axis[i] * (1.0 - cos)
+            turn += dot * axis[i] * one_less_cos
             out[i] += turn
     return np.ascontiguousarray(out.T, np.float32)  # (N, 3) rows, as the callers (KISS-ICP above all) expect
