@@ -824,6 +824,36 @@ def test_a_track_seen_through_as_it_left_is_a_mover():
             TrackConfig(leave_min_length=bad)
 
 
+def test_observations_too_small_to_judge_neither_end_nor_join_a_run_seen_through():
+    from ros2_mos.offline.tracks import SEEN_LEAVING, Observation, Track, TrackConfig, Tracker
+
+    def cyclist(tid: int, points: list[int], far: list[float], x: list[float]) -> Track:
+        """A cyclist 1.6 m long 15 m ahead, ``x[k]`` m along x in observation k; ``far``: its share seen through."""
+        return Track(tid, [Observation(k, 0, np.array([15.0 + xk, -2.4, -1.0]), n, np.array([14.2 + xk, -2.7, -1.7]),
+                                       np.array([15.8 + xk, -2.2, 0.0]), share, share, distance=15.0)
+                           for k, (n, share, xk) in enumerate(zip(points, far, x))])
+
+    # like VLP-16 validation easy-9612-100's: waits 60 scans, rides off, seen through in 6 observations of 10-17
+    # returns, 0.6 m on; the drive's last scan sees 7 returns of it (under evidence_points, 8), not seen through
+    x = [0.0] * 60 + [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7]
+    points = [300] * 60 + [17, 16, 14, 7, 12, 10, 7]
+    far = [0.0] * 60 + [0.5, 0.6, 0.6, 0.0, 0.7, 0.9, 0.0]
+    config = TrackConfig(cue_observations=5, leave_travel=0.25, seen_through=0.3, evidence_points=8,
+                         min_moving_observations=2)
+    tracker = Tracker(config)
+    tracker.tracks = [cyclist(0, points, far, x),
+                      cyclist(1, points[:-1] + [8], far, x)]  # 8 returns in the last scan, not seen through: judged
+    # by hand: track 0's run passes over scans 66 and 63 (7 returns each): 60, 61, 62, 64, 65; from scan 60's box to
+    # scan 65's, both edges 0.5 m on >= 0.25. Track 1's last observation (8 returns, 0.0 seen through) ends its run
+    assert [o.scan for o in tracker._final_run(tracker.tracks[0], seen_through=True)] == [60, 61, 62, 64, 65]
+    assert tracker._final_run(tracker.tracks[1], seen_through=True) == []
+    assert tracker.movers() == {}  # 5 of 67 seen through (< moving_share 0.2), 0.5 m (< min_evidence_travel 1.5)
+    assert tracker.seen_leaving({}) == {0: SEEN_LEAVING}
+    # the same for a track seen moving as it ended, which a mover beginning where it ended takes over
+    assert tracker._moving_as_it_ended(tracker.tracks[0]) and not tracker._moving_as_it_ended(tracker.tracks[1])
+
+
+
 def test_a_scan_the_online_model_refuses_goes_without_the_cue(jam, tmp_path, monkeypatch):
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.core.errors import ImplausibleScanError

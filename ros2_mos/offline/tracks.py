@@ -416,7 +416,7 @@ class Tracker:
     def seen_through(self, obs: Observation) -> bool:
         """Whether ``obs`` is moving evidence: at least ``seen_through`` of its points (``evidence_points`` or
         more) were seen through by a scan of the window (its ``far`` share)."""
-        return obs.far >= self.config.seen_through and obs.points >= self.config.evidence_points
+        return obs.far >= self.config.seen_through and self._judged(obs)
 
     def seen_moving(self, track: Track, cue: bool = False) -> bool:
         """Enough of the track's observations were seen through: a share of them, or fewer that lie apart (a car
@@ -487,7 +487,8 @@ class Tracker:
 
     def seen_leaving(self, movers: dict[int, str]) -> dict[int, str]:
         """{track id: SEEN_LEAVING} for the tracks, movers by no other evidence, whose last ``cue_observations`` or
-        more observations were all seen through (:meth:`seen_through`) and the last of whose boxes lies
+        more observations were all seen through (:meth:`seen_through`; those of too few returns to say are passed
+        over, :meth:`_final_run`) and the last of whose boxes lies
         ``leave_travel`` m on from the first of them (:func:`box_shift`: both edges): it was leaving as its track
         ended. Only vehicles (``leave_min_length``) and tracks not made mostly of parts cut off for being seen through
         (:class:`Observation`'s ``cut``). Call it last: a track that is a mover by other evidence keeps that."""
@@ -512,13 +513,24 @@ class Tracker:
 
     def _final_run(self, track: Track, seen_through: bool = False) -> list[Observation]:
         """The observations at the end of ``track`` that the online model labelled moving (``cue_share``), or with
-        ``seen_through`` that were seen through (:meth:`seen_through`), back to the last one that was not."""
+        ``seen_through`` that were seen through (:meth:`seen_through`), back to the last one that was not. With
+        ``seen_through``, observations of fewer than ``evidence_points`` returns are no evidence either way: they
+        neither end the run nor join it (a cyclist riding off, 7 returns in the drive's last scan, was seen through in
+        the 8 before)."""
         obs = track.observations
         start = len(obs)
-        while start > 0 and (self.seen_through(obs[start - 1]) if seen_through
-                             else obs[start - 1].online >= self.config.cue_share):
+        if not seen_through:
+            while start > 0 and obs[start - 1].online >= self.config.cue_share:
+                start -= 1
+            return obs[start:]
+        judged = self._judged
+        while start > 0 and (self.seen_through(obs[start - 1]) or not judged(obs[start - 1])):
             start -= 1
-        return obs[start:]
+        return [o for o in obs[start:] if judged(o)]
+
+    def _judged(self, obs: Observation) -> bool:
+        """Whether ``obs`` has enough returns (``evidence_points``) for its seen-through share to say anything."""
+        return obs.points >= self.config.evidence_points
 
     def _labelled_moving_along(self, observations: list[Observation]) -> bool:
         return evidence_travel(observations, self.config.evidence_travel) >= self.config.cue_travel and \
@@ -544,10 +556,16 @@ class Tracker:
         return low <= area <= high
 
     def _moving_as_it_ended(self, track: Track) -> bool:
-        """Whether ``track``'s last ``min_moving_observations`` observations were seen through."""
-        cfg = self.config
-        last = track.observations[-cfg.min_moving_observations:]
-        return len(last) == cfg.min_moving_observations and all(self.seen_through(o) for o in last)
+        """Whether ``track``'s last ``min_moving_observations`` observations of ``evidence_points`` returns or more
+        were seen through."""
+        want = self.config.min_moving_observations
+        last = []
+        for obs in reversed(track.observations):
+            if self._judged(obs):
+                last.append(obs)
+                if len(last) == want:
+                    break
+        return len(last) == want and all(self.seen_through(o) for o in last)
 
     def _as_it_ended(self, track: Track) -> tuple[np.ndarray, np.ndarray]:
         """The top-view box where ``track`` stood as it ended: its last box, or where it ended as the shrinking stub of
