@@ -1372,6 +1372,39 @@ def jam(tmp_path_factory) -> Path:
     return root
 
 
+def test_tracks_built_once_are_decided_again_under_other_settings_as_labelling_again_would(jam, tmp_path):
+    import copy
+    import inspect
+    import re
+
+    from ros2_mos.offline.tracks import TRACKING_FIELDS, TrackConfig, Tracker
+
+    drive = FolderDrive(jam / "sequences" / "00")
+    default = AutoLabeler(sensor_preset("vlp32c"))
+    (tmp_path / "tracked").mkdir()
+    tracked = default.track(drive, tmp_path / "tracked")
+    assert tracked.movers == {} and tracked.moving_ever == set() and tracked.moving_now == set()  # nothing decided
+    # judged by stricter rules: a mover must be seen through in 90 % of its observations, and move 2 m/s now
+    strict_config = AutolabelConfig(instant_speed=2.0, tracks=dataclasses.replace(TrackConfig(), moving_share=0.9))
+    for labeler in (default, AutoLabeler(sensor_preset("vlp32c"), strict_config)):
+        decided = labeler.decide(copy.deepcopy(tracked))
+        work = tmp_path / f"again{len(list(tmp_path.iterdir()))}"
+        work.mkdir()
+        again = labeler.label(drive, work)  # the whole drive labelled again with the same settings
+        assert decided.movers == again.movers and decided.movers
+        assert decided.moving_ever == again.moving_ever and decided.moving_now == again.moving_now
+        assert decided.tracker.config == labeler.config.tracks
+        if labeler is default:
+            loose = decided
+    assert decided.movers != loose.movers and decided.moving_now != loose.moving_now  # the settings told
+    # a setting read while the tracks are built cannot change afterwards
+    with pytest.raises(ConfigError, match="gate 1.5 -> 3.0"):
+        AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(tracks=TrackConfig(gate=3.0))).decide(
+            copy.deepcopy(tracked))
+    # the settings add_scan reads are the ones listed (a new one read there must be listed too)
+    assert set(re.findall(r"cfg\.(\w+)", inspect.getsource(Tracker.add_scan))) == set(TRACKING_FIELDS)
+
+
 @pytest.mark.parametrize("convention", ["semantickitti", "instant"])
 def test_autolabel_end_to_end_on_a_simulated_drive(jam, tmp_path, convention):
     out = tmp_path / "auto"

@@ -38,6 +38,10 @@ PULLED_AWAY = "pulling away as the drive ended"
 SEEN_LEAVING = "seen through as it left"
 #: How far apart seen-through observations lie (:func:`evidence_travel`).
 EVIDENCE_TRAVEL = ("box", "centroid")
+#: The :class:`TrackConfig` settings read while tracks are built (:meth:`Tracker.add_scan`); every other one is read
+#: only when the tracks are judged afterwards, and can change between judging the same tracks twice
+#: (:meth:`~ros2_mos.offline.autolabel.AutoLabeler.decide`).
+TRACKING_FIELDS = ("gate", "gate_per_speed", "max_missed", "max_speed", "max_area_ratio")
 
 
 @dataclass(frozen=True)
