@@ -1,8 +1,8 @@
 """``ros2-mos autolabel``: moving / static labels for a whole drive, from its past and its future.
 
-The steps (:meth:`AutoLabeler.label`: :meth:`~AutoLabeler.track` does 1-3 but for judging the tracks, nearly all the
-time; :meth:`~AutoLabeler.decide` the rest, in under a second, and can decide the same tracks again under other
-settings: ``benchmarks/autolabel_rules.py``), each a stage built once:
+The steps (:meth:`AutoLabeler.label`: :meth:`~AutoLabeler.track` does 1, 2 and the tracks of 3, nearly all the time;
+:meth:`~AutoLabeler.decide` the rest, in under a second, and can decide the same tracks again under other settings:
+``benchmarks/autolabel_rules.py``), each a stage built once:
 
 1. **Poses**: KISS-ICP over the drive (or the drive's own poses); where the sensor stood and moved off, KISS-ICP
    backwards too, and the pass that did not fall behind (the backward one where neither travelled clearly farther:
@@ -282,12 +282,12 @@ class AutoLabeler:
 
     # -- the steps -------------------------------------------------------------------------------------------
     def label(self, drive: Drive, workdir: Path, progress: ProgressFn = lambda stage, n: None) -> AutolabelResult:
-        """Run steps 1-3 over ``drive``; per-scan object ids are kept in ``workdir`` for :func:`scan_labels`."""
+        """Run steps 1-4 over ``drive``; per-scan object ids are kept in ``workdir`` for :func:`scan_labels`."""
         return self.decide(self.track(drive, workdir, progress))
 
     def track(self, drive: Drive, workdir: Path, progress: ProgressFn = lambda stage, n: None) -> AutolabelResult:
-        """Steps 1 and 2 over ``drive``: its poses, objects, evidence and tracks; nothing decided yet (no movers:
-        :meth:`decide`). Per-scan object ids are kept in ``workdir``."""
+        """Steps 1 and 2 over ``drive`` and the tracks of step 3: its poses, objects, evidence and tracks; nothing
+        decided yet (no movers: :meth:`decide`). Per-scan object ids are kept in ``workdir``."""
         n = len(drive)
         if n < MIN_SCANS:
             raise DatasetError(f"{drive.name}: {n} scan(s); autolabel needs at least {MIN_SCANS} (past and future)")
@@ -310,10 +310,11 @@ class AutoLabeler:
                                blind_radius=blind, deskewed=motions is not None)
 
     def decide(self, result: AutolabelResult) -> AutolabelResult:
-        """Step 3 on ``result``'s tracks (:meth:`track`) under this labeller's settings: which are movers, and where
-        they move under each convention. Its tracker's tracks are cut where they jumped (:meth:`Tracker.cut_jumps`)
-        and its settings become this labeller's: to decide again under other settings (any but those the tracks were
-        built with, :data:`~ros2_mos.offline.tracks.TRACKING_FIELDS`), pass a copy (``copy.deepcopy``)."""
+        """The rest of step 3 and step 4 on ``result``'s tracks (:meth:`track`) under this labeller's settings: which
+        are movers, and where they move under each convention. Its tracker's tracks are cut where they jumped
+        (:meth:`Tracker.cut_jumps`) and its settings become this labeller's: to decide again under other settings
+        (any but those the tracks were built with, :data:`~ros2_mos.offline.tracks.TRACKING_FIELDS`), pass a copy
+        (``copy.deepcopy``)."""
         tracker = result.tracker
         built = {name: getattr(tracker.config, name) for name in TRACKING_FIELDS}
         wanted = {name: getattr(self.config.tracks, name) for name in TRACKING_FIELDS}
