@@ -2,9 +2,10 @@
 
 Labelling a drive is two parts: its poses, objects, evidence and tracks (``AutoLabeler.track``, nearly all the time),
 then which tracks are movers and where they move (``AutoLabeler.decide``, under a second a drive). A rule of the
-second part can be tried on the 78 validation drives in about a minute: each drive's tracks are built once and kept
-in ``--cache`` (under a key of the code that builds them: a change there builds them again), then decided under the
-default settings and under each ``--variant``, and both conventions are scored.
+second part is tried on a sensor's validation drives in seconds once their tracks are kept (timings:
+``benchmarks/autolabel.md``, round 47): each drive's tracks are built once and kept in ``--cache`` (under a key of the
+code that builds them: a change there builds them again), then decided under the default settings and under each
+``--variant``, and both conventions are scored.
 
     python benchmarks/autolabel_rules.py --data data/autolabel --sensors vlp16 --seeds validation \\
         --variant tracks.cue_veto_near=0.1 --variant "tracks.leave_travel=0.5 instant_speed=0.5"
