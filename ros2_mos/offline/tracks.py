@@ -519,8 +519,8 @@ class Tracker:
         """The observations at the end of ``track`` that the online model labelled moving (``cue_share``), or with
         ``seen_through`` that were seen through (:meth:`seen_through`), back to the last one that was not. With
         ``seen_through``, observations of fewer than ``evidence_points`` returns are no evidence either way: they
-        neither end the run nor join it (a cyclist riding off, 7 returns in the drive's last scan, was seen through in
-        the 8 before)."""
+        neither end the run nor join it (a cyclist riding off, 7 returns in its last observation, was seen through in
+        the 7 before)."""
         obs = track.observations
         start = len(obs)
         if not seen_through:
