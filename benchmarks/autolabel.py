@@ -121,6 +121,33 @@ def cells(row: dict[str, float], cols: list[str], digits: int = 1) -> list[str]:
     return ["–" if c not in row else f"{row[c]:.1f}" if c == "scans/s" else f"{100 * row[c]:.{digits}f}" for c in cols]
 
 
+def config_with(settings: list[str]) -> tuple[AutolabelConfig, dict[str, object]]:
+    """The default :class:`AutolabelConfig` with ``settings`` (``NAME=VALUE``, ``objects.NAME``, ``tracks.NAME`` and
+    ``pairs.NAME`` nested; a number or a word) changed, and the changes by name; raises ValueError."""
+    changes: dict[str, object] = {}
+    nested: dict[str, dict[str, object]] = {"objects": {}, "tracks": {}, "pairs": {}}
+    for item in settings:
+        name, _, value = item.partition("=")
+        part, dot, field_name = name.rpartition(".")  # objects. / tracks. / pairs.NAME: nested
+        if dot and part not in nested:
+            raise ValueError(f"{name}: only objects.NAME, tracks.NAME and pairs.NAME are nested")
+        owner = getattr(AutolabelConfig(), part) if dot else AutolabelConfig()
+        if not hasattr(owner, field_name):
+            raise ValueError(f"{name}: no such setting")
+        kind = type(getattr(owner, field_name))
+        if kind is bool:  # bool("false") is True
+            if value.lower() not in ("true", "false"):
+                raise ValueError(f"{name}: true or false, got {value!r}")
+            converted: object = value.lower() == "true"
+        else:
+            converted = kind(value)
+        (nested[part] if dot else changes)[field_name] = converted
+    config = AutolabelConfig(**changes, **{part: dataclasses.replace(getattr(AutolabelConfig(), part), **values)
+                                           for part, values in nested.items() if values})
+    changes.update({f"{part}.{k}": v for part, values in nested.items() for k, v in values.items()})
+    return config, changes
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=Path("data/autolabel"))
@@ -133,27 +160,10 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="an AutolabelConfig setting other than its default (a number or a word)")
     args = parser.parse_args()
-    changes: dict[str, object] = {}
-    nested: dict[str, dict[str, object]] = {"objects": {}, "tracks": {}, "pairs": {}}
-    for item in args.set:
-        name, _, value = item.partition("=")
-        part, dot, field_name = name.rpartition(".")  # objects. / tracks. / pairs.NAME: nested
-        if dot and part not in nested:
-            parser.error(f"--set {name}: only objects.NAME, tracks.NAME and pairs.NAME are nested")
-        owner = getattr(AutolabelConfig(), part) if dot else AutolabelConfig()
-        if not hasattr(owner, field_name):
-            parser.error(f"--set {name}: no such setting")
-        kind = type(getattr(owner, field_name))
-        if kind is bool:  # bool("false") is True
-            if value.lower() not in ("true", "false"):
-                parser.error(f"--set {name}: true or false, got {value!r}")
-            converted: object = value.lower() == "true"
-        else:
-            converted = kind(value)
-        (nested[part] if dot else changes)[field_name] = converted
-    config = AutolabelConfig(**changes, **{part: dataclasses.replace(getattr(AutolabelConfig(), part), **values)
-                                           for part, values in nested.items() if values})
-    changes.update({f"{part}.{k}": v for part, values in nested.items() for k, v in values.items()})
+    try:
+        config, changes = config_with(args.set)
+    except (ValueError, TypeError) as error:  # TypeError, ConfigError (a ValueError): a value the setting refuses
+        parser.error(f"--set {error}")
     seeds = SEED_SETS[args.seeds]
     print(f"autolabel benchmark, {time.strftime('%Y-%m-%d')}: {args.seeds} drives, {args.scans} scans, "
           f"KISS-ICP poses, settings {changes or 'default'}{', skewed sweeps' if args.intra_sweep_motion else ''}\n")

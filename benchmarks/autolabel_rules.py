@@ -35,12 +35,12 @@ from ros2_mos.io.labels import to_moving_classes
 from ros2_mos.io.semantic_kitti import SemanticKittiSequence, read_label
 from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, AutolabelResult, scan_labels
 from ros2_mos.offline.drives import FolderDrive
-from ros2_mos.offline.tracks import TRACKING_FIELDS, TrackConfig
+from ros2_mos.offline.tracks import TRACKING_FIELDS
 from ros2_mos.scoring.metrics import MovingIoU
 from ros2_mos.scoring.suite import ensure_sim_sequences
 
 sys.path.insert(0, str(Path(__file__).parent))
-from autolabel import SEED_SETS  # noqa: E402  (the benchmark's seed sets, one definition)
+from autolabel import SEED_SETS, config_with  # noqa: E402  (the benchmark's seed sets and --set, defined once)
 
 #: The labeller's settings that only :meth:`AutoLabeler.decide` reads (where movers move under each convention).
 DECISION_SETTINGS = ("support_margin", "ever_from_motion", "shadow_edges", "instant_seen_through", "instant_speed",
@@ -63,36 +63,31 @@ def code_key() -> str:
 
 def parse_variant(text: str) -> AutolabelConfig:
     """``"tracks.NAME=VALUE NAME=VALUE ..."`` -> the default settings with those changed; raises ValueError."""
-    top: dict[str, object] = {}
-    tracks: dict[str, object] = {}
-    for item in text.split():
-        name, equals, value = item.partition("=")
-        if not equals:
+    settings = text.split()
+    for item in settings:
+        if "=" not in item:
             raise ValueError(f"{item!r}: NAME=VALUE")
-        owner, field_name, into = (TrackConfig(), name[len("tracks."):], tracks) if name.startswith("tracks.") \
-            else (AutolabelConfig(), name, top)
-        if not hasattr(owner, field_name):
-            raise ValueError(f"{name}: no such setting")
-        if isinstance(owner, TrackConfig) and field_name in TRACKING_FIELDS:
+    config = config_with(settings)[0]  # unknown names and values the settings refuse first
+    for item in settings:
+        name = item.partition("=")[0]
+        part, dot, field_name = name.rpartition(".")
+        if dot and part == "tracks" and field_name in TRACKING_FIELDS:
             raise ValueError(f"{name} is read while tracks are built: use benchmarks/autolabel.py --set")
-        if isinstance(owner, AutolabelConfig) and field_name not in DECISION_SETTINGS:
+        if (dot and part != "tracks") or (not dot and field_name not in DECISION_SETTINGS):
             raise ValueError(f"{name} is not read by the decision alone ({', '.join(DECISION_SETTINGS)}, tracks.*): "
                              "use benchmarks/autolabel.py --set")
-        kind = type(getattr(owner, field_name))
-        if kind is bool and value.lower() not in ("true", "false"):
-            raise ValueError(f"{name}: true or false, got {value!r}")
-        into[field_name] = value.lower() == "true" if kind is bool else kind(value)
-    return AutolabelConfig(**top, tracks=TrackConfig(**tracks))
+    return config
 
 
-def tracked_drive(folder: Path, sensor: str, cache: Path) -> tuple[AutolabelResult, Path]:
-    """The drive's tracks (from ``cache``, else built and kept there) and the folder of its per-scan object ids."""
-    where = cache / sensor / folder.name
+def tracked_drive(folder: Path, labeler: AutoLabeler, cache: Path) -> tuple[AutolabelResult, Path]:
+    """The drive's tracks (from ``cache``, else built by ``labeler`` and kept there) and the folder of its per-scan
+    object ids."""
+    where = cache / labeler.sensor.name / folder.name
     state = where / "tracked.pkl"
     if not state.exists():
         work = where / "objects"
         work.mkdir(parents=True, exist_ok=True)
-        tracked = AutoLabeler(sensor_preset(sensor)).track(FolderDrive(folder), work)
+        tracked = labeler.track(FolderDrive(folder), work)
         partial = state.with_suffix(".partial")
         with open(partial, "wb") as f:
             pickle.dump(tracked, f)
@@ -143,7 +138,7 @@ def main() -> None:
             dirs = label_dirs(folder)
             truth = {c: [to_moving_classes(read_label(dirs[c] / f"{f.stem}.label")) for f in seq.scan_files]
                      for c in CONVENTIONS}
-            tracked, objects = tracked_drive(folder, sensor, cache)
+            tracked, objects = tracked_drive(folder, labelers["default"], cache)
             cells = []
             for variant, labeler in labelers.items():
                 ious, movers = score(labeler, tracked, objects, truth)
