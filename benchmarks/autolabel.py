@@ -121,6 +121,14 @@ def cells(row: dict[str, float], cols: list[str], digits: int = 1) -> list[str]:
     return ["–" if c not in row else f"{row[c]:.1f}" if c == "scans/s" else f"{100 * row[c]:.{digits}f}" for c in cols]
 
 
+def preset_means(presets: list[str]) -> list[tuple[str, list[int]]]:
+    """The rows of means under a sensor's drives: (row name, indices of the drives it averages) per preset, in the
+    order they came (the issue's bars are per preset), then all of them."""
+    out = [(f"{preset} mean of {presets.count(preset)}", [i for i, p in enumerate(presets) if p == preset])
+           for preset in dict.fromkeys(presets)]
+    return [*out, (f"mean of {len(presets)}", list(range(len(presets))))]
+
+
 def config_with(settings: list[str]) -> tuple[AutolabelConfig, dict[str, object]]:
     """The default :class:`AutolabelConfig` with ``settings`` (``NAME=VALUE``, ``objects.NAME``, ``tracks.NAME`` and
     ``pairs.NAME`` nested; a number or a word) changed, and the changes by name; raises ValueError."""
@@ -173,16 +181,18 @@ def main() -> None:
     print("|---|---|" + "---:|" * len(cols))
     for sensor in args.sensors:
         root = args.data if sensor == "hdl64" else args.data / sensor
-        rows = []
+        rows, presets = [], []
         try:
             drives = ensure_sim_sequences(root, args.scans, seeds, print, sensor, args.intra_sweep_motion)
         except DatasetError as error:  # a skewed drive among others, or the other way round
             parser.error(str(error))
-        for _, name, folder in drives:
+        for preset, name, folder in drives:
             rows.append(score_drive(folder, sensor, not args.no_online, config))
+            presets.append(preset)
             print(f"| {sensor} | {name} | " + " | ".join(cells(rows[-1], cols)) + " |", flush=True)
-        mean = {c: float(np.mean([r[c] for r in rows])) for c in rows[0]}
-        print(f"| {sensor} | mean of {len(rows)} | " + " | ".join(cells(mean, cols, 2)) + " |", flush=True)
+        for label, chosen in preset_means(presets):
+            mean = {c: float(np.mean([rows[i][c] for i in chosen])) for c in rows[0]}
+            print(f"| {sensor} | {label} | " + " | ".join(cells(mean, cols, 2)) + " |", flush=True)
 
 
 if __name__ == "__main__":

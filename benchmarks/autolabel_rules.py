@@ -40,7 +40,7 @@ from ros2_mos.scoring.metrics import MovingIoU
 from ros2_mos.scoring.suite import ensure_sim_sequences
 
 sys.path.insert(0, str(Path(__file__).parent))
-from autolabel import SEED_SETS, config_with  # noqa: E402  (the benchmark's seed sets and --set, defined once)
+from autolabel import SEED_SETS, config_with, preset_means  # noqa: E402  (seed sets, --set, means: defined once)
 
 #: The labeller's settings that only :meth:`AutoLabeler.decide` reads (where movers move under each convention).
 DECISION_SETTINGS = ("support_margin", "ever_from_motion", "shadow_edges", "instant_seen_through", "instant_speed",
@@ -133,21 +133,24 @@ def main() -> None:
         root = args.data if sensor == "hdl64" else args.data / sensor
         labelers = {name: AutoLabeler(sensor_preset(sensor), config) for name, config in variants.items()}
         rows: dict[str, list[list[float]]] = {name: [] for name in variants}
-        for _, name, folder in ensure_sim_sequences(root, args.scans, SEED_SETS[args.seeds], print, sensor):
+        presets = []
+        for preset, name, folder in ensure_sim_sequences(root, args.scans, SEED_SETS[args.seeds], print, sensor):
             seq = SemanticKittiSequence(folder)
             dirs = label_dirs(folder)
             truth = {c: [to_moving_classes(read_label(dirs[c] / f"{f.stem}.label")) for f in seq.scan_files]
                      for c in CONVENTIONS}
             tracked, objects = tracked_drive(folder, labelers["default"], cache)
+            presets.append(preset)
             cells = []
             for variant, labeler in labelers.items():
                 ious, movers = score(labeler, tracked, objects, truth)
                 rows[variant].append(ious)
                 cells.append(f"{ious[0]:.2f} / {ious[1]:.2f} ({movers})")
             print(f"| {sensor} | {name} | " + " | ".join(cells) + " |", flush=True)
-        means = [np.mean(rows[v], axis=0) for v in variants]
-        print(f"| {sensor} | mean of {len(rows['default'])} | "
-              + " | ".join(f"**{m[0]:.2f} / {m[1]:.2f}**" for m in means) + " |", flush=True)
+        for label, chosen in preset_means(presets):
+            means = [np.mean([rows[v][i] for i in chosen], axis=0) for v in variants]
+            print(f"| {sensor} | {label} | " + " | ".join(f"**{m[0]:.2f} / {m[1]:.2f}**" for m in means) + " |",
+                  flush=True)
 
 
 if __name__ == "__main__":
