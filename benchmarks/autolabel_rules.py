@@ -13,8 +13,8 @@ code that builds them: a change there builds them again), then decided under the
 A variant changes settings that only the decision reads: ``tracks.NAME`` for any track setting but those read while
 tracks are built (``ros2_mos.offline.tracks.TRACKING_FIELDS``), and the labeller's :data:`DECISION_SETTINGS`. Others
 (objects, evidence, the online cue) need ``benchmarks/autolabel.py --set``, which labels every drive again. Prints
-per drive the moving IoU under SemanticKITTI's convention and the instant one and the movers, per variant, and the
-means.
+per drive the moving IoU under SemanticKITTI's convention and the instant one and the movers, per variant, then
+each preset's mean and the mean of all of a sensor's drives.
 """
 
 from __future__ import annotations
