@@ -38,6 +38,7 @@ from ros2_mos.offline.drives import FolderDrive
 from ros2_mos.offline.tracks import TRACKING_FIELDS
 from ros2_mos.scoring.metrics import MovingIoU
 from ros2_mos.scoring.suite import ensure_sim_sequences
+from ros2_mos.sim.writer import SIMULATOR_FILE
 
 sys.path.insert(0, str(Path(__file__).parent))
 from autolabel import SEED_SETS, config_with, preset_means  # noqa: E402  (seed sets, --set, means: defined once)
@@ -81,8 +82,10 @@ def parse_variant(text: str) -> AutolabelConfig:
 
 def tracked_drive(folder: Path, labeler: AutoLabeler, cache: Path) -> tuple[AutolabelResult, Path]:
     """The drive's tracks (from ``cache``, else built by ``labeler`` and kept there) and the folder of its per-scan
-    object ids."""
-    where = cache / labeler.sensor.name / folder.name
+    object ids. Kept per drive as simulated (its ``simulator.txt``): a drive simulated anew is tracked anew."""
+    stamp = folder / SIMULATOR_FILE
+    made = stamp.read_text().strip() if stamp.is_file() else "unstamped"
+    where = cache / labeler.sensor.name / f"{folder.name}-{made}"
     state = where / "tracked.pkl"
     if not state.exists():
         work = where / "objects"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import TEST_SENSOR, make_threshold_model
@@ -224,3 +226,45 @@ def test_simulated_suite_drives_are_not_mixed_with_skewed_ones(tmp_path):
     assert (skewed[0][2] / "sweep.txt").read_text().strip() == "skewed"
     with pytest.raises(DatasetError, match="simulated with intra-sweep motion"):
         ensure_sim_sequences(tmp_path / "skewed", 3, seeds, sensor="vlp16")
+
+
+def test_a_suite_drive_written_by_another_simulator_or_not_to_its_end_is_simulated_anew(tmp_path, monkeypatch):
+    """Each simulated drive says what made it (simulator.txt, written last): one this simulator made with these
+    settings is reused as it is; one that another version made, one cut off before its end and one that says nothing
+    are simulated again, with a line saying why."""
+    import ros2_mos.sim.writer as writer
+    from ros2_mos.scoring.suite import ensure_sim_sequences
+
+    seeds = {"easy": (3,)}
+    log: list[str] = []
+    (_, _, folder), = ensure_sim_sequences(tmp_path, 3, seeds, log.append, sensor="vlp16")
+    stamp = folder / writer.SIMULATOR_FILE
+    first = stamp.read_text()
+    scan = (folder / "velodyne" / "000002.bin").read_bytes()
+    assert len(log) == 1 and len(first.strip()) == 16
+    ensure_sim_sequences(tmp_path, 3, seeds, log.append, sensor="vlp16")
+    assert len(log) == 1  # reused
+
+    for spoil in (lambda: stamp.write_text("0123456789abcdef\n"),  # another version of the simulator
+                  stamp.unlink):  # cut off before its end, or written before the stamp existed
+        spoil()
+        log.clear()
+        ensure_sim_sequences(tmp_path, 3, seeds, log.append, sensor="vlp16")
+        assert len(log) == 2 and "anew" in log[0]
+        assert stamp.read_text() == first and (folder / "velodyne" / "000002.bin").read_bytes() == scan
+
+    # The fingerprint follows the settings and the simulator's own sources
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.sim import sim_preset
+
+    base = writer.simulator_fingerprint(sim_preset("easy"), sensor_preset("vlp16"), 3, folder.name, 3)
+    assert base == first.strip()
+    assert writer.simulator_fingerprint(sim_preset("easy"), sensor_preset("vlp32c"), 3, folder.name, 3) != base
+    assert writer.simulator_fingerprint(sim_preset("easy"), sensor_preset("vlp16"), 4, folder.name, 3) != base
+    source = tmp_path / "sim_copy"
+    source.mkdir()
+    for path in Path(writer.__file__).parent.glob("*.py"):
+        (source / path.name).write_bytes(path.read_bytes())
+    (source / "traffic.py").write_bytes((source / "traffic.py").read_bytes() + b"\n# changed\n")
+    monkeypatch.setattr(writer, "__file__", str(source / "writer.py"))
+    assert writer.simulator_fingerprint(sim_preset("easy"), sensor_preset("vlp16"), 3, folder.name, 3) != base

@@ -151,23 +151,31 @@ def ensure_sim_sequences(root: Path, scans: int, seeds: dict[str, tuple[int, ...
                          sensor: str = "hdl64", skewed: bool = False) -> list[tuple[str, str, Path]]:
     """(preset, row name, sequence folder) of the suite's simulated sequences, simulating missing ones (``skewed``:
     each column cast from the pose of its firing time, ``--intra-sweep-motion``). A folder there already whose
-    ``sweep.txt`` says otherwise (none: not skewed) is refused: keep skewed drives in a root of their own."""
+    ``sweep.txt`` says otherwise (none: not skewed) is refused: keep skewed drives in a root of their own. One that
+    another version of the simulator wrote, or that was not written to its end (its ``simulator.txt``:
+    :func:`~ros2_mos.sim.writer.made_by_this_simulator`), is simulated anew: its figures would be another drive's."""
+    import shutil
+
     from ros2_mos.sim import sim_preset, simulate_sequence, with_effects
+    from ros2_mos.sim.writer import made_by_this_simulator
 
     out = []
     for preset, preset_seeds in seeds.items():
         for seed in preset_seeds:
             name = f"{preset}-{seed}-{scans}"
             folder = root / "sequences" / name
-            # A folder of an older version (without both label conventions) is simulated anew.
-            if not (folder / "poses.txt").is_file() or len(label_dirs(folder)) < 2:
-                log(f"simulating {name} ({scans} scans) into {folder}")
-                sim = sim_preset(preset)
-                simulate_sequence(root, name, scans, with_effects(sim, intra_sweep_motion=True) if skewed else sim,
-                                  seed, sensor)
-            elif bool(read_sweep_file(folder)) != skewed:
+            if folder.is_dir() and bool(read_sweep_file(folder)) != skewed:
                 raise DatasetError(f"{folder} was simulated {'with' if not skewed else 'without'} intra-sweep motion; "
                                    f"keep skewed and other drives in roots of their own")
+            sim = sim_preset(preset)
+            sim = with_effects(sim, intra_sweep_motion=True) if skewed else sim
+            if not made_by_this_simulator(folder, sim, sensor, seed, scans):
+                if folder.exists():
+                    log(f"simulating {name} anew: {folder} was written by another version of the simulator, or not "
+                        "to its end")
+                    shutil.rmtree(folder)
+                log(f"simulating {name} ({scans} scans) into {folder}")
+                simulate_sequence(root, name, scans, sim, seed, sensor)
             out.append((preset, name, folder))
     return out
 

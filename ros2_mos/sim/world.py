@@ -35,7 +35,8 @@ class SimScan:
     scan: LidarScan
 
 
-def _resolve(preset: str | SimPreset, sensor: str | SensorConfig) -> tuple[SimPreset, SensorConfig]:
+def resolve_settings(preset: str | SimPreset, sensor: str | SensorConfig) -> tuple[SimPreset, SensorConfig]:
+    """The preset and sensor a simulation runs with, from their names or as given."""
     return (sim_preset(preset) if isinstance(preset, str) else preset,
             sensor_preset(sensor) if isinstance(sensor, str) else sensor)
 
@@ -49,7 +50,7 @@ class SequenceSimulator:
             raise ConfigError(f"n_scans must be >= 1, got {n_scans}")
         if seed < 0:
             raise ConfigError(f"seed must be >= 0, got {seed}")
-        self.preset, self.sensor = _resolve(preset, sensor)
+        self.preset, self.sensor = resolve_settings(preset, sensor)
         self.n_scans, self.seed, self.name = n_scans, seed, name
         self._key = [int(seed), zlib.crc32(name.encode())]
         rng = np.random.default_rng(self._key)

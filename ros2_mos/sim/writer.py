@@ -5,11 +5,14 @@ poses through KITTI's ``Tr``, as the real dataset), ``calib.txt`` and
 ``times.txt``; ``labels/`` carries the chosen label convention and ``labels_<other>/``
 the other one, ``label_convention.txt`` says which is which
 (:mod:`ros2_mos.io.conventions`), all through :mod:`ros2_mos.io.semantic_kitti`, so that the
-project's own reader (and any SemanticKITTI tool) reads them back unchanged.
+project's own reader (and any SemanticKITTI tool) reads them back unchanged. ``simulator.txt``, written
+last, says what made the sequence (:func:`simulator_fingerprint`): a folder simulated by other code, or not
+to its end, can be told from one this code would write.
 """
 
 from __future__ import annotations
 
+import hashlib
 import time
 from pathlib import Path
 from typing import Callable, Iterator
@@ -31,10 +34,37 @@ from ros2_mos.io.sweep import write_sweep_file
 from ros2_mos.sim.presets import SimPreset
 from ros2_mos.sim.stats import SequenceStats
 from ros2_mos.sim.traffic import relabel_movers
-from ros2_mos.sim.world import SequenceSimulator
+from ros2_mos.sim.world import SequenceSimulator, resolve_settings
 
 #: Bag stamps start here (2023-11-14T22:13:20Z): a plausible wall-clock time rather than 0.
 BAG_EPOCH_NS = 1_700_000_000 * 1_000_000_000
+
+
+#: The file in a simulated sequence's folder that holds :func:`simulator_fingerprint`.
+SIMULATOR_FILE = "simulator.txt"
+
+
+def simulator_fingerprint(preset: SimPreset, sensor: SensorConfig, seed: int, name: str, n_scans: int) -> str:
+    """A short hash of what a simulated sequence is made of: the simulator's sources (this package's modules), its
+    preset (effects included), the sensor and the sequence's seed, name and length. Another version of the
+    simulator, a preset or sensor changed, gives another."""
+    digest = hashlib.sha1()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    digest.update(repr((preset, sensor, seed, name, n_scans)).encode())
+    return digest.hexdigest()[:16]
+
+
+def made_by_this_simulator(root: Path, preset: str | SimPreset, sensor: str | SensorConfig, seed: int,
+                           n_scans: int) -> bool:
+    """Whether the sequence folder ``root`` was simulated to its end by this simulator with these settings (its
+    ``simulator.txt`` holds their :func:`simulator_fingerprint`)."""
+    stamp = root / SIMULATOR_FILE
+    if not stamp.is_file():
+        return False
+    resolved, config = resolve_settings(preset, sensor)
+    return stamp.read_text().strip() == simulator_fingerprint(resolved, config, seed, root.name, n_scans)
 
 
 def sequence_dir(out_dir: str | Path, name: str) -> Path:
@@ -90,6 +120,7 @@ def simulate_sequence(
     write_poses(root / "poses.txt", np.asarray(poses))
     write_calib(root / "calib.txt")
     write_times(root / "times.txt", np.asarray(times))
+    (root / SIMULATOR_FILE).write_text(simulator_fingerprint(sim.preset, sim.sensor, seed, name, n_scans) + "\n")
     stats.seconds = time.perf_counter() - start
     return stats
 
