@@ -17,9 +17,10 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --data data/skewed --intra-sweep-motion --no-online --set deskew=on
 
 Drives are simulated into --data (reused where their simulator.txt says this simulator made them with these
-settings, else simulated anew); KISS-ICP poses for both. Prints a Markdown table: per drive the moving IoU of autolabel and of the online model
-under SemanticKITTI's and the instant convention, autolabel's precision and recall (semantickitti), and its speed;
-then per sensor each preset's mean (the issue's bars are per preset) and the mean of all its drives.
+settings, else simulated anew); KISS-ICP poses for both. Prints a Markdown table: per drive the moving IoU of
+autolabel and of the online model under SemanticKITTI's and the instant convention, autolabel's precision and recall
+(semantickitti), and its speed; then per sensor each preset's mean (the issue's bars are per preset) and the mean of
+all its drives.
 """
 
 from __future__ import annotations
