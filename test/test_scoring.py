@@ -253,6 +253,16 @@ def test_a_suite_drive_written_by_another_simulator_or_not_to_its_end_is_simulat
         assert len(log) == 2 and "anew" in log[0]
         assert stamp.read_text() == first and (folder / "velodyne" / "000002.bin").read_bytes() == scan
 
+    # A simulation into the folder that stops before its end leaves it unstamped
+    def broken_scan(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(writer, "write_scan", broken_scan)
+    with pytest.raises(OSError):
+        writer.simulate_sequence(tmp_path, folder.name, 3, "easy", 3, "vlp16")
+    assert not stamp.exists()
+    monkeypatch.undo()
+
     # The fingerprint follows the settings and the simulator's own sources
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.sim import sim_preset

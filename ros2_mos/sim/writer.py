@@ -95,6 +95,7 @@ def simulate_sequence(
     folders = {convention: root / "labels", other: root / f"labels_{other}"}
     for folder in (root / "velodyne", *folders.values()):
         folder.mkdir(parents=True, exist_ok=True)
+    (root / SIMULATOR_FILE).unlink(missing_ok=True)  # until the last scan is written, the folder is no such drive
     write_convention_file(root, convention)
     write_sweep_file(root, sim.preset.effects.intra_sweep_motion)
     movers = sim.traffic.observed_movers(sim.lidar.max_range)
