@@ -916,6 +916,37 @@ def test_seen_through_observations_lie_apart_only_when_their_boxes_travel():
         TrackConfig(evidence_travel="median")
 
 
+def test_a_box_that_stood_jumped_once_and_stood_again_did_not_travel():
+    from ros2_mos.offline.tracks import Observation, Track, TrackConfig, Tracker
+
+    def obs(scan: int, x: float, far: float) -> Observation:  # one ring across a car's roof: a flat sliver
+        lo, hi = np.array([x, 7.0, 2.1]), np.array([x + 0.1, 8.8, 2.1])
+        return Observation(scan, 0, (lo + hi) / 2, 10, lo, hi, 0.0, far)
+
+    # A parked car's roof seen by one ring as the sensor nears: the ring stands at x 74.5 for nine scans, then at
+    # 76.0 (1.5 m on in one scan) for five; far scans see through it now and then (5 of 14)
+    seen = {50: 0.7, 52: 0.3, 53: 0.4, 57: 0.4, 62: 0.54}
+    roof = Track(0, [obs(k, 74.5 if k < 54 else 76.0, seen.get(k, 0.0)) for k in [*range(45, 58), 62]])
+    # A car seen by one ring as it drives off, 0.4 m a scan, seen through as often
+    driving = Track(1, [obs(k, 74.5 + 0.4 * (k - 45), seen.get(k, 0.0)) for k in [*range(45, 58), 62]])
+    # A car that waited, then left in two steps (2 m, then 1 m), seen through as it left
+    left = Track(2, [obs(k, 10.0 + (2.0 if k == 30 else 3.0 if k > 30 else 0.0), 0.4 if k >= 29 else 0.0)
+                     for k in range(32)])
+    config = TrackConfig(min_evidence_travel=1.5, moving_share=0.4)  # by travel only: none is seen through that often
+    tracker = Tracker(config)
+    assert not tracker.seen_moving(Track(0, roof.observations))
+    assert tracker.seen_moving(driving) and tracker.seen_moving(left)
+    assert Tracker(TrackConfig(min_evidence_travel=1.5, moving_share=0.4, travel_jump=0.0)).seen_moving(roof)
+    # a car hidden for three scans while it moved 1.5 m, standing before and after, moved
+    hidden = Track(4, [o for o in roof.observations if not 51 <= o.scan <= 53])
+    assert Tracker(config).seen_moving(hidden)
+    # the jump needs two observations after it: a car that left in one step as its track ended travelled
+    assert Tracker(config).seen_moving(Track(3, [*roof.observations[:9], obs(54, 76.0, 0.5)]))
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ConfigError, match="travel_jump"):
+            TrackConfig(travel_jump=bad)
+
+
 def test_parts_cut_off_for_being_seen_through_make_a_mover_only_if_they_travel():
     from ros2_mos.offline.tracks import Observation, Track, TrackConfig, Tracker
 
