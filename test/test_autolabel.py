@@ -261,6 +261,51 @@ def test_a_stack_of_rings_over_an_object_joins_it_and_a_crown_far_above_it_does_
     assert joined(np.array([at(5, 10.0), at(4, 12.0)], np.float32), 2.0) == [0, -1]
 
 
+def test_a_cars_lowest_ring_joins_it_where_only_the_ground_farther_around_shows_it_clear_of_the_road():
+    # A sensor of 64 rows 0.47 degrees apart, 1.73 m over a flat road. A car 24.3 m ahead: its face in rows 34-38
+    # (0.44-1.23 m up); row 39 passes under its bumper and meets it 0.44 m behind the face, 0.21 m over the road
+    # (27 degrees under row 38: not steep). The road shows up to 19.9 m: the car hides it behind, and row 39 is the
+    # lowest return within two cells of it, its own local ground. Five cells around, the road is found.
+    sensor = SensorConfig("column64", 64, 1024, 15.0, -15.0, 0.0, 100.0)
+    pitch = np.radians(15.0 - 30.0 / 64 * (np.arange(64) + 0.5))
+    y = np.arange(-0.8, 0.81, 0.15)
+
+    def ring(row: int, x: float) -> np.ndarray:
+        return np.column_stack([np.full(len(y), x), y, np.hypot(x, y) * np.tan(pitch[row])])
+
+    face = np.vstack([ring(row, 24.3) for row in range(34, 39)])
+    lowest = ring(39, 24.74)
+    gx, gy = np.meshgrid(np.arange(4.0, 20.0, 0.5), np.arange(-8.0, 8.0, 0.5))
+    road = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, -1.73)])
+    points = np.vstack([face, lowest, road]).astype(np.float32)
+    f, n = len(face), len(lowest)
+    assert pixel_index(points[f:f + n], sensor).v.tolist() == [39] * n
+    assert np.allclose(points[f:f + n, 2] + 1.73, 0.21, atol=0.01)
+
+    def lowest_ring(config: ObjectConfig) -> np.ndarray:
+        found = find_objects(points, config, sensor=sensor)
+        assert (found.point_object[:f] == found.point_object[0]).all() and found.point_object[0] >= 0
+        assert (found.point_object[f + n:] == -1).all()  # the road stays the road
+        assert (found.height_above_ground[f:f + n] < 0.01).all()  # its own local ground
+        return found.point_object[f:f + n] == found.point_object[0]
+
+    assert lowest_ring(ObjectConfig()).all()
+    assert not lowest_ring(ObjectConfig(attach_under_radius=0)).any()  # the local ground alone: on no object
+    assert not lowest_ring(ObjectConfig(attach_under_radius=2)).any()  # no wider than the local ground's window
+    assert not lowest_ring(ObjectConfig(attach_under_wide_lift=0.25)).any()  # 0.21 m up: not clear of that
+
+
+def test_object_settings_that_count_cells_or_points_are_whole_numbers():
+    for name in ("ground_radius", "attach_under_radius", "min_points", "ego_scans"):
+        with pytest.raises(ConfigError, match=f"{name} must be a whole number"):
+            ObjectConfig(**{name: 2.5})
+    for bad in (float("nan"), float("inf"), -0.1, 0.0):
+        with pytest.raises(ConfigError, match="attach_under_wide_lift"):
+            ObjectConfig(attach_under_wide_lift=bad)
+    with pytest.raises(ConfigError, match="attach_under_radius"):
+        ObjectConfig(attach_under_radius=-1)
+
+
 def test_find_objects_joins_a_vans_upper_ring_that_is_a_cluster_of_its_own():
     # A VLP-16 1.73 m up, a van's side 30 m ahead (1.9 m wide): rows 7 and 8 meet it 2.22 and 1.24 m above the road,
     # 0.98 m apart: two clusters of 0.4 m voxels. The lower ring is an object; the upper one stands 2.22 m off the
