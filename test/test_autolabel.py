@@ -295,13 +295,56 @@ def test_a_cars_lowest_ring_joins_it_where_only_the_ground_farther_around_shows_
     assert not lowest_ring(ObjectConfig(attach_under_wide_lift=0.25)).any()  # 0.21 m up: not clear of that
 
 
+def test_a_sidewalk_ring_at_a_walkers_feet_stays_ground_and_his_foot_joins_him():
+    # A sensor of 64 rows 0.47 degrees apart, 1.73 m over a road; a sidewalk 0.15 m higher where y <= 1 (the road's
+    # within the local ground's 5 m: the sidewalk is 0.15 m over the local ground, clear of it). A walker stands on
+    # it 8 m ahead (a front 0.3 m wide at x 7.8, 0.35-1.7 m up); every row meets the ground as a ring, round him.
+    sensor = SensorConfig("column64", 64, 1024, 15.0, -15.0, 0.0, 100.0)
+    pitch = np.radians(15.0 - 30.0 / 64 * (np.arange(64) + 0.5))
+    yaw = np.radians(np.arange(-30.0, 30.0, 360 / 1024))
+    rings = []
+    for row in np.flatnonzero(pitch < np.radians(-3.0)):
+        for drop, side in ((1.58, lambda y: y <= 1.0), (1.73, lambda y: y > 1.0)):
+            r = drop / np.tan(-pitch[row])
+            x, y = r * np.cos(yaw), r * np.sin(yaw)
+            keep = side(y) & ((x - 8.0) ** 2 + y**2 > 0.2**2) & (r < 30.0)
+            rings.append(np.column_stack([x[keep], y[keep], np.full(keep.sum(), -drop)]))
+    ground = np.vstack(rings)
+    front = np.array([[7.8, y, 7.8 * np.tan(p)] for p in pitch for y in np.arange(-0.15, 0.16, 0.06)
+                      if 0.35 <= 7.8 * np.tan(p) + 1.73 <= 1.7])
+    # His foot: 0.08 m over the sidewalk, 7.85 m out, in the row that meets the sidewalk 0.44 m behind it
+    row = int(np.argmin(np.abs(7.85 * np.tan(pitch) + 1.58 - 0.08)))
+    foot = np.array([[7.85, y, 7.85 * np.tan(pitch[row])] for y in (-0.05, 0.0, 0.05)])
+    points = np.vstack([front, foot, ground]).astype(np.float32)
+    f, n = len(front), len(foot)
+    sidewalk_ring = np.flatnonzero((np.abs(points[:, 2] + 1.58) < 1e-3)
+                                   & (np.hypot(points[:, 0] - 8.0, points[:, 1]) < 0.45))
+    sidewalk_ring = sidewalk_ring[sidewalk_ring >= f + n]
+    assert len(sidewalk_ring) >= 3
+
+    def walker(config: ObjectConfig) -> tuple[np.ndarray, np.ndarray]:
+        found = find_objects(points, config, sensor=sensor)
+        him = found.point_object[0]
+        assert him >= 0 and (found.point_object[:f] == him).all()
+        return found.point_object[f:f + n] == him, found.point_object[sidewalk_ring] == him
+
+    foot_joined, ring_joined = walker(ObjectConfig())
+    assert foot_joined.all() and not ring_joined.any()
+    foot_joined, ring_joined = walker(ObjectConfig(ring_ground=0.0))  # without the rule the ring joins him too
+    assert foot_joined.all() and ring_joined.any()
+
+
 def test_object_settings_that_count_cells_or_points_are_whole_numbers():
     for name in ("ground_radius", "attach_under_radius", "min_points", "ego_scans"):
         with pytest.raises(ConfigError, match=f"{name} must be a whole number"):
             ObjectConfig(**{name: 2.5})
-    for bad in (float("nan"), float("inf"), -0.1, 0.0):
-        with pytest.raises(ConfigError, match="attach_under_wide_lift"):
-            ObjectConfig(attach_under_wide_lift=bad)
+    for name in ("attach_under_wide_lift", "ring_ground_range", "ring_ground_height"):
+        for bad in (float("nan"), float("inf"), -0.1, 0.0):
+            with pytest.raises(ConfigError, match=name):
+                ObjectConfig(**{name: bad})
+    for bad in (float("nan"), float("inf"), -0.1):
+        with pytest.raises(ConfigError, match="ring_ground"):
+            ObjectConfig(ring_ground=bad)
     with pytest.raises(ConfigError, match="attach_under_radius"):
         ObjectConfig(attach_under_radius=-1)
 
