@@ -389,16 +389,11 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
     # whatever the farthest return); farther points are ground (height 0).
     near = np.flatnonzero(horizontal < (config.max_range + (config.ground_radius + 1) * config.ground_cell) ** 2)
     height = np.zeros(n, np.float32)
-    far_lifted = None  # clear of the ground farther around (attach_under_radius)
     if len(near):
         ground = local_ground(points[near], config.ground_cell, config.ground_radius, config.ground_outlier)
         if sensor is not None and config.blind_floor:
             ground = blind_floor(points[near], ground, sensor, config.blind_ring, config.ground_height)
         height[near] = points[near, 2] - ground
-        if sensor is not None and config.attach_under_radius > config.ground_radius:
-            wide = local_ground(points[near], config.ground_cell, config.attach_under_radius, config.ground_outlier)
-            far_lifted = np.zeros(n, bool)
-            far_lifted[near] = points[near, 2] - np.minimum(ground, wide) > config.attach_under_wide_lift
     free = ~on_vehicle(points, vehicle, config) if vehicle is not None else True
     candidate = np.flatnonzero((height > config.ground_height) & free
                                & (horizontal + points[:, 2] ** 2 < config.max_range**2))
@@ -436,8 +431,10 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
         # down to the ground: in a blind spot the object's lowest ring is the "ground"
         column = (loose | low) & (point_object < 0)
         lifted = height > config.attach_under_lift if config.attach_under_lift > 0 else None
-        if lifted is not None and far_lifted is not None:
-            lifted |= far_lifted
+        if lifted is not None and config.attach_under_radius > config.ground_radius:  # objects: ``near`` has points
+            # ... or clear of the lowest ground farther around (a car's lowest ring that is its own local ground)
+            wide = local_ground(points[near], config.ground_cell, config.attach_under_radius, config.ground_outlier)
+            lifted[near] |= points[near, 2] - np.minimum(ground, wide) > config.attach_under_wide_lift
         attached |= attach_below(points, np.flatnonzero(column), point_object, sensor, config.attach_steep, image,
                                  config.attach_under, lifted)
         if config.ring_ground > 0:  # the ground rings that joined: not the raised rings below, which are no ground
@@ -460,7 +457,8 @@ def on_ground_ring(points: np.ndarray, joined: np.ndarray, point_object: np.ndar
     """Which of the points ``joined`` (indices: low points given an object, ``point_object``) lie on a ring that
     goes on as ground (``ObjectConfig.ring_ground``): in their row of ``image`` (the closest point per pixel), the
     nearest low return left or right on no object lies within ``ring_ground`` metres at their range and height, and
-    out of ``attach_distance`` of every object's own points (``own``: the objects without what joined them)."""
+    out of ``attach_distance`` of every object's own points (``own``: the objects without what joined them, a
+    scratch copy that this changes)."""
     out = np.zeros(len(points), bool)
     if len(joined) == 0:
         return out
@@ -474,18 +472,18 @@ def on_ground_ring(points: np.ndarray, joined: np.ndarray, point_object: np.ndar
     chosen = np.zeros(len(points), bool)
     chosen[joined] = True
     v, u = np.nonzero(filled & chosen[at])
-    point = image[v, u]
-    ranges = np.sqrt(np.einsum("ij,ij->i", points, points))
+    pairs = []  # (joined point, the ground return beside it), both sides
     for side in (before, after):
         column = side[v, u]
         has = (column >= 0) & (column < w)
-        p, q = point[has], image[v[has], column[has]]
-        same = (np.hypot(*(points[p, :2] - points[q, :2]).T) <= config.ring_ground) \
-            & (np.abs(ranges[p] - ranges[q]) <= config.ring_ground_range) \
-            & (np.abs(points[p, 2] - points[q, 2]) <= config.ring_ground_height)
-        if same.any():  # ... and that return is out of every object's reach (else it is the object's own, unjoined)
-            reached = attach_to_nearest(points, q[same], own.copy(), config.attach_distance)
-            out[p[same][~reached[q[same]]]] = True
+        pairs.append((image[v[has], u[has]], image[v[has], column[has]]))
+    p, q = (np.concatenate(x) for x in zip(*pairs))
+    same = (np.hypot(*(points[p, :2] - points[q, :2]).T) <= config.ring_ground) \
+        & (np.abs(np.linalg.norm(points[p], axis=1) - np.linalg.norm(points[q], axis=1)) <= config.ring_ground_range) \
+        & (np.abs(points[p, 2] - points[q, 2]) <= config.ring_ground_height)
+    if same.any():  # ... and that return is out of every object's reach (else it is the object's own, unjoined)
+        reached = attach_to_nearest(points, q[same], own, config.attach_distance)
+        out[p[same][~reached[q[same]]]] = True
     return out
 
 
