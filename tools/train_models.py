@@ -7,7 +7,9 @@ Sequence names in the config say which preset each is simulated with (b* benchma
 t* traffic_jam, e* easy, s* slow_traffic); every sequence gets its own randomised sensor effects
 (:func:`ros2_mos.sim.presets.randomized_for_sequence`) from ``--seed`` (100 by default;
 the evaluation suite's seeds are different, see :mod:`ros2_mos.scoring.suite`).
-Sequences already on disk are kept.  The first variant builds the shared input
+Sequences already on disk are kept where this simulator wrote them with these settings
+(their ``simulator.txt``); others (another seed, scan count, sensor or simulator version,
+or cut short) are simulated anew.  The first variant builds the shared input
 cache; the others start once it trains.  Without ``--variant`` the config is
 trained as it is.  A run resumes from its ``last.pt``.
 
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import shutil
 import signal
 import sys
 import tarfile
@@ -30,14 +33,22 @@ import yaml
 PRESET_OF_PREFIX = {"b": "benchmark", "t": "traffic_jam", "e": "easy", "s": "slow_traffic"}
 
 
-def _simulate(job: tuple[str, str, int, int, bool, bool, bool, bool, str]) -> str:
-    from ros2_mos.sim import sim_preset, simulate_sequence
+def _preset(name: str, seed: int, large_trees: bool, beam_layout: bool, narrow_street: bool, parked_vans: bool):
+    from ros2_mos.sim import sim_preset
     from ros2_mos.sim.presets import randomized_for_sequence
 
-    root, name, scans, seed, large_trees, beam_layout, narrow_street, parked_vans, sensor = job
-    preset = randomized_for_sequence(sim_preset(PRESET_OF_PREFIX[name[0]]), seed, name, large_trees, beam_layout,
-                                     narrow_street, parked_vans)
-    simulate_sequence(root, name, scans, preset, seed, sensor=sensor, convention="instant")
+    return randomized_for_sequence(sim_preset(PRESET_OF_PREFIX[name[0]]), seed, name, large_trees, beam_layout,
+                                   narrow_street, parked_vans)
+
+
+def _simulate(job: tuple[str, str, int, int, bool, bool, bool, bool, str]) -> str:
+    from ros2_mos.sim import simulate_sequence
+
+    root, name, scans, seed, *drawn, sensor = job
+    folder = Path(root) / "sequences" / name
+    if folder.exists():  # another simulator's, other settings', or cut short (main checked)
+        shutil.rmtree(folder)
+    simulate_sequence(root, name, scans, _preset(name, seed, *drawn), seed, sensor=sensor, convention="instant")
     return name
 
 
@@ -87,17 +98,23 @@ def main() -> int:
               file=sys.stderr)
         return 2
     start = time.monotonic()
-    todo = [n for n in names if not (Path(args.data) / "sequences" / n / "poses.txt").is_file()]
-    with mp.get_context("spawn").Pool(max(1, args.jobs)) as pool:
-        from ros2_mos.core.config import SensorConfig
+    from ros2_mos.core.config import SensorConfig
+    from ros2_mos.sim.writer import made_by_this_simulator
 
-        sensor = base.get("sensor", "hdl64")  # a preset name, or a custom sensor's dict
-        sensor = sensor if isinstance(sensor, str) else SensorConfig.from_dict(sensor)
-        narrow = {str(n) for n in base.get("sim_narrow_streets", [])}
-        vans = {str(n) for n in base.get("sim_parked_vans", [])}
-        jobs = [(args.data, n, args.scans, args.seed, bool(base.get("sim_large_trees", False)),
-                 bool(base.get("sim_beam_layout", True)), n in narrow, n in vans, sensor) for n in todo]
-        for name in pool.imap_unordered(_simulate, jobs):
+    sensor = base.get("sensor", "hdl64")  # a preset name, or a custom sensor's dict
+    sensor = sensor if isinstance(sensor, str) else SensorConfig.from_dict(sensor)
+    narrow = {str(n) for n in base.get("sim_narrow_streets", [])}
+    vans = {str(n) for n in base.get("sim_parked_vans", [])}
+    jobs = [(args.data, n, args.scans, args.seed, bool(base.get("sim_large_trees", False)),
+             bool(base.get("sim_beam_layout", True)), n in narrow, n in vans, sensor) for n in names]
+    todo = [job for job in jobs if not made_by_this_simulator(Path(args.data) / "sequences" / job[1],
+                                                              _preset(job[1], *job[3:8]), sensor, args.seed,
+                                                              args.scans)]
+    stale = [job[1] for job in todo if (Path(args.data) / "sequences" / job[1]).exists()]
+    if stale:
+        print(f"simulating anew (another simulator, other settings, or cut short): {' '.join(stale)}", flush=True)
+    with mp.get_context("spawn").Pool(max(1, args.jobs)) as pool:
+        for name in pool.imap_unordered(_simulate, todo):
             pass
     print(f"simulated {len(todo)} of {len(names)} sequences x {args.scans} scans in {time.monotonic() - start:.0f} s",
           flush=True)

@@ -21,6 +21,7 @@ import dataclasses
 import json
 import math
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -276,20 +277,26 @@ def prepare_simulated(sensor: SensorConfig, work: Path, config: AdaptConfig, rec
                       progress: Callable[[str, int], None]) -> tuple[list[str], list[str]]:
     """Simulated drives of the same sensor (instant labels, randomised sensor effects), drawn as the base's recipe
     drew its training drives (large trees, beam layout, the shares on narrow streets and with parked vans), written
-    once: (to train on, held out)."""
+    once: (to train on, held out). A drive there already that this simulator did not write with these settings to
+    its end (its ``simulator.txt``: another ``sim_seed`` or ``sim_scans``, another version of the simulator, or cut
+    short) is simulated anew."""
     from ros2_mos.sim import sim_preset, simulate_sequence
     from ros2_mos.sim.presets import randomized_for_sequence
+    from ros2_mos.sim.writer import made_by_this_simulator
 
     presets = ("benchmark", "traffic_jam", "easy")
     names = [f"sim{i:02d}" for i in range(config.sim_drives)] + [f"simv{i}" for i in range(config.sim_holdout)]
     narrow = recipe_share_drives(recipe, recipe.sim_narrow_streets, len(names))
     vans = recipe_share_drives(recipe, recipe.sim_parked_vans, len(names))
     for i, name in enumerate(names):
-        if (work / "data" / "sequences" / name / "poses.txt").is_file():
-            continue
         preset = randomized_for_sequence(sim_preset(presets[i % len(presets)]), config.sim_seed, name,
                                          large_trees=recipe.sim_large_trees, beam_layout=recipe.sim_beam_layout,
                                          narrow_street=narrow[i], parked_vans=vans[i])
+        folder = work / "data" / "sequences" / name
+        if made_by_this_simulator(folder, preset, sensor, config.sim_seed + i, config.sim_scans):
+            continue
+        if folder.exists():
+            shutil.rmtree(folder)
         simulate_sequence(work / "data", name, config.sim_scans, preset, config.sim_seed + i, sensor,
                           progress=lambda n: progress("simulate", n), convention="instant")
     return names[: config.sim_drives], names[config.sim_drives:]
