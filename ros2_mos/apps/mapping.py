@@ -21,7 +21,7 @@ import numpy as np
 from ros2_mos.core.atomic import atomic_path, write_bytes_atomically
 from ros2_mos.core.config import MosConfig
 from ros2_mos.core.deskew import check_deskew_mode, deskew, deskew_wanted, drive_motions
-from ros2_mos.core.errors import ConfigError, DatasetError, ScanError
+from ros2_mos.core.errors import ConfigError, DatasetError, ScanError, scan_refused
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.projection import finite_mask
 from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
@@ -310,8 +310,11 @@ def build_maps(
     pipeline.reset()
     poses, moving, shares, stamps = [], [], [], []
     for scan in progress(drive):
-        res = pipeline.process(scan.points, scan.intensity, scan.stamp,
-                               pose=given[scan.index] if given is not None else None)
+        try:
+            res = pipeline.process(scan.points, scan.intensity, scan.stamp,
+                                   pose=given[scan.index] if given is not None else None)
+        except ScanError as exc:
+            raise scan_refused(exc, f"{drive.name} scan {scan.index} ({drive.scan_names[scan.index]})") from exc
         poses.append(res.pose)
         moving.append(np.packbits(res.labels.astype(bool)))  # a bit per point: bounded for a long drive
         stamps.append(scan.stamp)

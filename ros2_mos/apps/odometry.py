@@ -22,7 +22,7 @@ import numpy as np
 
 from ros2_mos.apps.kitti_metrics import SEGMENT_LENGTHS, STEP_SIZE, OdometryErrors, evaluate_trajectory, to_camera_frame
 from ros2_mos.core.config import MosConfig
-from ros2_mos.core.errors import ConfigError, DatasetError
+from ros2_mos.core.errors import ConfigError, DatasetError, ScanError, scan_refused
 from ros2_mos.core.inference import MosModel
 from ros2_mos.core.odometry import KissIcpOdometry
 from ros2_mos.core.projection import finite_mask
@@ -96,7 +96,11 @@ def _mos_frames(
     pipeline.reset()
     for frame in progress(sequence):
         start = time.perf_counter()
-        result = pipeline.process(frame.points, frame.remission, frame.timestamp)
+        try:
+            result = pipeline.process(frame.points, frame.remission, frame.timestamp)
+        except ScanError as exc:
+            raise scan_refused(exc, f"{sequence.name} scan {frame.index} ({sequence.scan_files[frame.index].name})") \
+                from exc
         n_valid = int(result.valid.sum())
         masked = float(result.labels[result.valid].sum()) / n_valid if n_valid else 0.0
         yield result.pose, (time.perf_counter() - start) * 1e3, masked

@@ -13,6 +13,13 @@ class ScanError(MosError, ValueError):
     """A scan is malformed: wrong shape, empty, or without any finite point."""
 
 
+def scan_refused(exc: ScanError, where: str) -> ScanError:
+    """``exc`` for an offline run over a sequence, with the scan it is about (``where``: the sequence, the scan and
+    its file): the run stops there, where a skipped scan would leave a hole that gives the next scans residuals
+    against the wrong past scans (the node, which cannot stop, skips and counts such clouds)."""
+    return ScanError(f"{where}: {exc}; fix or remove that scan and run again")
+
+
 class ImplausibleScanError(ScanError):
     """A well-formed cloud that is no LiDAR scan (points scattered through a volume): refused before odometry."""
 

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ros2_mos.core.errors import DatasetError
+from ros2_mos.core.errors import DatasetError, ScanError, scan_refused
 from ros2_mos.core.pipeline import MosPipeline, MosResult
 from ros2_mos.io.conventions import label_dirs
 from ros2_mos.io.labels import MOVING, check_prediction_ids, to_moving_classes, to_submission
@@ -31,13 +31,18 @@ class ScanPrediction:
 def predict_sequence(
     pipeline: MosPipeline, sequence: SemanticKittiSequence, use_dataset_poses: bool = False
 ) -> Iterator[ScanPrediction]:
-    """Label every scan of a sequence in order (the pipeline is reset first)."""
+    """Label every scan of a sequence in order (the pipeline is reset first); a scan the pipeline refuses (no points,
+    none finite) stops it (:func:`~ros2_mos.core.errors.scan_refused`)."""
     if use_dataset_poses:
         sequence.require_poses("--use-poses")
     pipeline.reset()
     for frame in sequence:
         pose = frame.pose if use_dataset_poses else None
-        result = pipeline.process(frame.points, frame.remission, frame.timestamp, pose=pose)
+        try:
+            result = pipeline.process(frame.points, frame.remission, frame.timestamp, pose=pose)
+        except ScanError as exc:
+            raise scan_refused(exc, f"{sequence.name} scan {frame.index} ({sequence.scan_files[frame.index].name})") \
+                from exc
         gt = None if frame.labels is None else to_moving_classes(frame.labels)
         yield ScanPrediction(frame.index, result, gt)
 
