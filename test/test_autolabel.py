@@ -18,7 +18,7 @@ from ros2_mos.core.config import SensorConfig, sensor_preset
 from ros2_mos.core.errors import ConfigError, DatasetError
 from ros2_mos.core.projection import pixel_index
 from ros2_mos.io.labels import instance_ids, semantic_ids
-from ros2_mos.io.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_poses
+from ros2_mos.io.semantic_kitti import KITTI_TR, SemanticKittiSequence, read_poses, read_scan, write_scan
 from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, label_objects, scan_labels
 from ros2_mos.offline.drives import FolderDrive, _scan
 from ros2_mos.offline.objects import (
@@ -1638,6 +1638,14 @@ def test_autolabel_refuses_bad_input_with_one_line_and_writes_nothing(jam, tmp_p
     result = runner.invoke(app, ["autolabel", str(mixed), "--out", str(out), "--sensor", "vlp32c"])
     assert result.exit_code != 0 and "does not fit the configured sensor" in str(result.exception)
     assert not (out / "sequences" / "mixed").exists()
+    # a scan with no finite point (a driver's dropout) among them: named, nothing written
+    dropout = tmp_path / "dropout"
+    shutil.copytree(jam / "sequences" / "00" / "velodyne", dropout / "velodyne")
+    scan = read_scan(dropout / "velodyne" / "000005.bin")
+    write_scan(dropout / "velodyne" / "000005.bin", np.full_like(scan[:, :3], np.nan), scan[:, 3])
+    result = runner.invoke(app, ["autolabel", str(dropout), "--out", str(out), "--sensor", "vlp32c"])
+    assert result.exit_code != 0 and "dropout scan 5 (000005): no finite points" in str(result.exception)
+    assert not (out / "sequences" / "dropout").exists()
     # an existing output
     (out / "sequences" / "00").mkdir(parents=True)
     result = runner.invoke(app, ["autolabel", str(jam / "sequences" / "00"), "--out", str(out)])

@@ -357,7 +357,8 @@ class AutoLabeler:
         poses, stamps, sizes = [], [], []
         for scan in drive:
             if len(scan.points) == 0:
-                raise DatasetError(f"{drive.name} scan {scan.index}: no finite points")
+                raise DatasetError(f"{drive.name} scan {scan.index} ({drive.scan_names[scan.index]}): no finite "
+                                   "points; fix or remove that scan and run again")
             problem = mismatch_message(scan.points, self.sensor) if scan.index % SENSOR_CHECK_EVERY == 0 else None
             if problem:
                 raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")
