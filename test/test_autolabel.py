@@ -642,6 +642,36 @@ def test_a_track_does_not_jump_onto_an_object_many_times_its_size():
         TrackConfig(max_area_ratio=0.5)
 
 
+def test_a_car_that_moved_near_then_waited_far_away_is_a_mover_by_what_it_did_near():
+    from ros2_mos.offline.tracks import Observation, Track, TrackConfig, Tracker
+
+    # HDL-64E suite easy-9301: a car drives away behind the sensor, seen through in its first 5 observations 33-39 m
+    # away (1 m of box travel: too little to count on its own), then waits 56-98 m away for 60 scans, where no scan
+    # can see through where it was. Within 60 m the share of seen-through observations holds (5 of 20); counting the
+    # far observations as well, it does not (5 of 80).
+    def obs(k: int, seen: bool) -> Observation:
+        centre = np.array([-33.0 - 0.25 * min(k, 4), 3.5, 0.8])
+        distance = 33.0 + 1.5 * k if k < 20 else 56.0 + 0.7 * (k - 20)
+        share = 0.4 if seen else 0.0
+        return Observation(k, 0, centre, 60, centre - [0.5, 0.8, 0.8], centre + [0.5, 0.8, 0.8], share, share,
+                           distance=distance)
+
+    def track(seen: set[int]) -> Track:
+        return Track(0, [obs(k, k in seen) for k in range(80)])
+
+    def mover(seen: set[int], config: TrackConfig = TrackConfig()) -> bool:
+        tracker = Tracker(config)
+        tracker.tracks = [track(seen)]
+        return tracker.seen_moving(tracker.tracks[0])
+
+    assert mover({0, 1, 2, 3, 4}) and not mover({0, 1, 2, 3, 4}, TrackConfig(evidence_range=1000.0))
+    # A far observation that is evidence counts: 2 of the 20 near ones seen through and 4 of the far ones, 6 of 24
+    assert mover({0, 4, 20, 30, 40, 50}) and not mover({0, 4})
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="evidence_range"):
+            TrackConfig(evidence_range=bad)
+
+
 def test_a_track_is_cut_where_it_jumps_from_a_pedestrian_onto_the_parked_car_he_walked_past():
     from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
 
