@@ -41,14 +41,14 @@ def _preset(name: str, seed: int, large_trees: bool, beam_layout: bool, narrow_s
                                    narrow_street, parked_vans)
 
 
-def _simulate(job: tuple[str, str, int, int, bool, bool, bool, bool, str]) -> str:
+def _simulate(job: tuple[str, str, int, int, object, object]) -> str:
     from ros2_mos.sim import simulate_sequence
 
-    root, name, scans, seed, *drawn, sensor = job
+    root, name, scans, seed, preset, sensor = job
     folder = Path(root) / "sequences" / name
     if folder.exists():  # another simulator's, other settings', or cut short (main checked)
         shutil.rmtree(folder)
-    simulate_sequence(root, name, scans, _preset(name, seed, *drawn), seed, sensor=sensor, convention="instant")
+    simulate_sequence(root, name, scans, preset, seed, sensor=sensor, convention="instant")
     return name
 
 
@@ -105,11 +105,12 @@ def main() -> int:
     sensor = sensor if isinstance(sensor, str) else SensorConfig.from_dict(sensor)
     narrow = {str(n) for n in base.get("sim_narrow_streets", [])}
     vans = {str(n) for n in base.get("sim_parked_vans", [])}
-    jobs = [(args.data, n, args.scans, args.seed, bool(base.get("sim_large_trees", False)),
-             bool(base.get("sim_beam_layout", True)), n in narrow, n in vans, sensor) for n in names]
-    todo = [job for job in jobs if not made_by_this_simulator(Path(args.data) / "sequences" / job[1],
-                                                              _preset(job[1], *job[3:8]), sensor, args.seed,
-                                                              args.scans)]
+    jobs = [(args.data, n, args.scans, args.seed,
+             _preset(n, args.seed, bool(base.get("sim_large_trees", False)), bool(base.get("sim_beam_layout", True)),
+                     n in narrow, n in vans), sensor) for n in names]
+    todo = [job for job in jobs
+            if not made_by_this_simulator(Path(args.data) / "sequences" / job[1], job[4], sensor, args.seed,
+                                          args.scans)]
     stale = [job[1] for job in todo if (Path(args.data) / "sequences" / job[1]).exists()]
     if stale:
         print(f"simulating anew (another simulator, other settings, or cut short): {' '.join(stale)}", flush=True)

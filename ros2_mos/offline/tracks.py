@@ -445,7 +445,8 @@ class Tracker:
         observations carry the online model's labels) and ``cue_veto``, one that did not travel must not be one the
         model calls static."""
         cfg = self.config
-        evidence = [o for o in track.observations if self.seen_through(o)]
+        seen = [self.seen_through(o) for o in track.observations]
+        evidence = [o for o, s in zip(track.observations, seen) if s]
         if len(evidence) < cfg.min_moving_observations:
             return False
         travel = evidence_travel(evidence, cfg.evidence_travel)
@@ -458,9 +459,7 @@ class Tracker:
                 and max(o.near for o in track.observations) <= cfg.cue_veto_near:
             return False  # seen through now and then where it stands, the online model calls it static, and no
             # scan just before or after saw through it
-        counted = sum(1 for o in track.observations if self._within_range(o)) + \
-            sum(1 for o in evidence if not self._within_range(o))
-        return len(evidence) >= cfg.moving_share * counted
+        return len(evidence) >= cfg.moving_share * self._counted(track.observations, seen)
 
     def labelled_moving(self, track: Track) -> bool:
         """The online model labelled enough of the track's observations moving (see ``TrackConfig.cue_share``), its
@@ -471,8 +470,7 @@ class Tracker:
         hit = np.array([o.online >= cfg.cue_share for o in obs])
         if hit.sum() < cfg.cue_observations:
             return False
-        counted = sum(1 for o, h in zip(obs, hit) if h or self._within_range(o))
-        if hit.sum() >= cfg.cue_track_share * counted and self._labelled_moving_along(obs):
+        if hit.sum() >= cfg.cue_track_share * self._counted(obs, hit) and self._labelled_moving_along(obs):
             return True
         if not cfg.cue_run:
             return False
@@ -568,6 +566,11 @@ class Tracker:
     def _judged(self, obs: Observation) -> bool:
         """Whether ``obs`` has enough returns (``evidence_points``) for its seen-through share to say anything."""
         return obs.points >= self.config.evidence_points
+
+    def _counted(self, observations: list[Observation], evidence: list[bool] | np.ndarray) -> int:
+        """How many of ``observations`` count in a share of them that must be evidence (``evidence``: per
+        observation, whether it is): those within ``evidence_range``, and those farther that are evidence."""
+        return sum(1 for o, e in zip(observations, evidence) if e or self._within_range(o))
 
     def _within_range(self, obs: Observation) -> bool:
         """Whether ``obs`` lies within ``evidence_range`` of the sensor (or its distance is not known)."""
