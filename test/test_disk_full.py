@@ -183,3 +183,25 @@ def test_the_console_script_prints_one_line(tmp_path, tiny_model_path, full_disk
         main()
     err = capsys.readouterr().err
     assert info.value.code == 1 and err == f"error: {tmp_path / 'x'}: No space left on device\n"
+
+
+def test_a_failed_block_removes_the_folders_it_made_and_keeps_the_rest(tmp_path):
+    from ros2_mos.core.atomic import folder_kept_on_success
+
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "other.txt").write_text("a user's file")
+    with pytest.raises(RuntimeError), folder_kept_on_success(tmp_path / "out" / "sequences" / "a") as folder:
+        assert folder.is_dir()
+        raise RuntimeError("stage failed")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["other.txt"]  # its own, made before: kept
+    # a folder that something else filled meanwhile stays, and so does everything above it
+    with pytest.raises(RuntimeError), folder_kept_on_success(tmp_path / "new" / "sequences") as folder:
+        (folder / "kept.label").write_bytes(b"")
+        raise RuntimeError("stage failed")
+    assert (tmp_path / "new" / "sequences" / "kept.label").exists()
+    with folder_kept_on_success(tmp_path / "ok" / "sequences") as folder:  # success: everything stays
+        pass
+    assert folder.is_dir()
+    with pytest.raises(OutputError, match="cannot write"):  # a file where a folder must go: one line
+        with folder_kept_on_success(tmp_path / "out" / "other.txt" / "sequences"):
+            pass

@@ -49,6 +49,31 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 @contextmanager
+def folder_kept_on_success(folder: str | Path) -> Iterator[Path]:
+    """``folder``, made with its missing parents; where the block raises, the folders it made are removed again
+    (those still empty), so that a failed command leaves no empty ``OUT/sequences/`` behind."""
+    folder = Path(folder)
+    made: list[Path] = []
+    p = folder
+    while not p.exists() and p != p.parent:
+        made.append(p)  # deepest first
+        p = p.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise output_error(folder, exc) from None
+    try:
+        yield folder
+    except BaseException:
+        for p in made:
+            try:
+                p.rmdir()
+            except OSError:  # not empty (or gone): keep it and what is above it
+                break
+        raise
+
+
+@contextmanager
 def atomic_open(path: str | Path, mode: str = "wb", **kwargs: Any) -> Iterator[IO[Any]]:
     """``open(path, mode)`` for writing, atomically (see :func:`atomic_path`)."""
     with atomic_path(path) as tmp, open(tmp, mode, **kwargs) as f:

@@ -38,6 +38,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from ros2_mos.core.atomic import folder_kept_on_success
 from ros2_mos.core.config import OdometryConfig, SensorConfig
 from ros2_mos.core.deskew import check_deskew_mode, deskew, deskew_wanted, drive_motions
 from ros2_mos.core.errors import ConfigError, DatasetError
@@ -740,38 +741,38 @@ def autolabel_drive(drive: Drive, out_root: str | Path, sensor: SensorConfig, co
     final = Path(out_root) / "sequences" / drive.name
     if final.exists():
         raise DatasetError(f"{final} already exists; remove it or choose another --out")
-    final.parent.mkdir(parents=True, exist_ok=True)
-    partial = Path(tempfile.mkdtemp(prefix=f".{drive.name}.partial-", dir=final.parent))
-    try:
-        workdir = partial / "objects"
-        workdir.mkdir()
-        labeler = AutoLabeler(sensor, config)
-        result = labeler.label(drive, workdir, progress)
-        names = drive.scan_names
-        bev = BirdsEye() if png else None
-        for k, scan in enumerate(drive):  # read again: each label file has one label per stored point
-            moving = scan_labels(labeler, result, workdir, k, convention)
-            full = np.zeros(scan.stored, bool)
-            full[scan.kept] = moving
-            write_label(partial / "predictions" / f"{names[k]}.label", to_submission(full))
-            result.moving_points.append(int(moving.sum()))
+    with folder_kept_on_success(final.parent):
+        partial = Path(tempfile.mkdtemp(prefix=f".{drive.name}.partial-", dir=final.parent))
+        try:
+            workdir = partial / "objects"
+            workdir.mkdir()
+            labeler = AutoLabeler(sensor, config)
+            result = labeler.label(drive, workdir, progress)
+            names = drive.scan_names
+            bev = BirdsEye() if png else None
+            for k, scan in enumerate(drive):  # read again: each label file has one label per stored point
+                moving = scan_labels(labeler, result, workdir, k, convention)
+                full = np.zeros(scan.stored, bool)
+                full[scan.kept] = moving
+                write_label(partial / "predictions" / f"{names[k]}.label", to_submission(full))
+                result.moving_points.append(int(moving.sum()))
+                if bev is not None:
+                    tracks = track_ids(result, workdir, k)
+                    bev.add(scan.points, result.poses[k], tracks if convention == SEMANTICKITTI
+                            else np.where(moving, tracks, -1), k)
+                progress("labels", 1)
+            shutil.rmtree(workdir)
+            write_poses(partial / "poses.txt", result.poses)
+            write_times(partial / "times.txt", result.stamps)
+            write_convention_file(partial, convention)
+            write_sweep_file(partial, skewed=result.deskewed)  # how the labels took the sweeps (``map`` follows it)
+            write_objects_table(partial / "objects.csv", result)
             if bev is not None:
-                tracks = track_ids(result, workdir, k)
-                bev.add(scan.points, result.poses[k], tracks if convention == SEMANTICKITTI
-                        else np.where(moving, tracks, -1), k)
-            progress("labels", 1)
-        shutil.rmtree(workdir)
-        write_poses(partial / "poses.txt", result.poses)
-        write_times(partial / "times.txt", result.stamps)
-        write_convention_file(partial, convention)
-        write_sweep_file(partial, skewed=result.deskewed)  # how the labels took the sweeps (``map`` follows it)
-        write_objects_table(partial / "objects.csv", result)
-        if bev is not None:
-            bev.write(partial / "movers.png", f"{drive.name}: {len(result.movers)} movers ({convention})")
-        partial.rename(final)
-    except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
-        raise
+                bev.write(partial / "movers.png", f"{drive.name}: {len(result.movers)} movers ({convention})")
+            partial.rename(final)
+        except BaseException:
+            shutil.rmtree(partial, ignore_errors=True)
+            raise
     return final, result
 
 
