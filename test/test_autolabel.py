@@ -1533,6 +1533,41 @@ def jam(tmp_path_factory) -> Path:
     return root
 
 
+def test_autolabel_runs_kiss_icp_on_one_thread_so_that_a_drive_labelled_twice_gets_the_same_poses(monkeypatch):
+    import kiss_icp.registration
+    from kiss_icp.pybind import kiss_icp_pybind
+
+    from ros2_mos.core.config import OdometryConfig
+    from ros2_mos.core.odometry import KissIcpOdometry
+    from ros2_mos.offline.autolabel import REPEATABLE_ODOMETRY
+    from ros2_mos.offline.viewpoints import PairRegistration, PairRegistrationConfig
+
+    threads = []
+    for module, name in ((kiss_icp_pybind, "_Registration"), (kiss_icp.registration, "Registration")):
+        real = getattr(module, name)
+
+        def recording(*args, real=real, **kwargs):
+            threads.append(kwargs.get("max_num_threads"))
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(module, name, recording)
+    odometry = KissIcpOdometry(REPEATABLE_ODOMETRY)  # autolabel's poses: KISS-ICP's and both ICP slices on one thread
+    assert len(threads) >= 2 and set(threads) == {1}
+    assert AutoLabeler(sensor_preset("vlp32c")).odometry_config.threads == 1
+    assert odometry._kiss.config.registration.max_num_threads == 1  # its preprocessing's too
+    threads.clear()
+    PairRegistration(PairRegistrationConfig(), (-5, 5))  # autolabel's pairs
+    assert threads and set(threads) == {1}
+    threads.clear()
+    KissIcpOdometry(OdometryConfig())  # the node's: every core, as KISS-ICP's default
+    assert len(threads) >= 2 and set(threads) == {0}
+    for bad in (-1, 1.5, float("nan")):
+        with pytest.raises(ConfigError, match="threads"):
+            OdometryConfig(threads=bad)
+        with pytest.raises(ConfigError, match="threads"):
+            PairRegistrationConfig(threads=bad)
+
+
 def test_tracks_built_once_are_decided_again_under_other_settings_as_labelling_again_would(jam, tmp_path):
     import copy
     import inspect
@@ -1554,6 +1589,7 @@ def test_tracks_built_once_are_decided_again_under_other_settings_as_labelling_a
         again = labeler.label(drive, work)  # the whole drive labelled again with the same settings
         assert decided.movers == again.movers and decided.movers
         assert decided.moving_ever == again.moving_ever and decided.moving_now == again.moving_now
+        np.testing.assert_array_equal(again.poses, tracked.poses)  # to the bit: KISS-ICP on one thread
         assert decided.tracker.config == labeler.config.tracks
         if labeler is default:
             loose = decided

@@ -51,6 +51,7 @@ class KissIcpOdometry:
         cfg.mapping.voxel_size = config.voxel_size if config.voxel_size is not None else config.max_range / 100.0
         cfg.mapping.max_points_per_voxel = config.max_points_per_voxel
         cfg.registration.convergence_criterion = config.convergence_criterion
+        cfg.registration.max_num_threads = config.threads  # its preprocessing's too
         self.config = config
         self._kiss_config = cfg
         self._kiss_class = KissICP
@@ -61,7 +62,7 @@ class KissIcpOdometry:
         reg = cfg.registration
         self._pybind = kiss_icp_pybind
         first = min(ICP_FIRST_SLICE, int(reg.max_num_iterations))
-        self._slices = [kiss_icp_pybind._Registration(max_num_iterations=n, max_num_threads=reg.max_num_threads,
+        self._slices = [kiss_icp_pybind._Registration(max_num_iterations=n, max_num_threads=config.threads,
                                                       convergence_criterion=reg.convergence_criterion)
                         for n in (first, ICP_SLICE)]
         self._more_slices = -(-(int(reg.max_num_iterations) - first) // ICP_SLICE)

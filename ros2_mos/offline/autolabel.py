@@ -268,11 +268,18 @@ def _restart(clouds: Iterator[np.ndarray], poses: np.ndarray, config: OdometryCo
     return out
 
 
+#: KISS-ICP for autolabel's poses: on one thread, as the pair registration (``PairRegistrationConfig.threads``), so
+#: that a drive labelled twice gets the same labels: with every core its sums add up in an order that varies with the
+#: machine's load, and the poses 1e-14 apart grew into another mover on a drive whose mover sat on a share's bar
+#: (benchmarks/autolabel.md, round 51)
+REPEATABLE_ODOMETRY = OdometryConfig(threads=1)
+
+
 class AutoLabeler:
     """Labels one drive at a time; the stages are built once."""
 
     def __init__(self, sensor: SensorConfig, config: AutolabelConfig = AutolabelConfig(),
-                 odometry: OdometryConfig = OdometryConfig(), model: str | Path | None = None) -> None:
+                 odometry: OdometryConfig = REPEATABLE_ODOMETRY, model: str | Path | None = None) -> None:
         from ros2_mos.core.inference import shipped_models
 
         self.sensor, self.config, self.odometry_config = sensor, config, odometry

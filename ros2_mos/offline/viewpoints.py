@@ -15,7 +15,8 @@ and is worse (``benchmarks/autolabel.md``, round 28).
 The pairs of a drive are registered as its scans arrive (:meth:`PairRegistration.add`): scan a against the later
 scans it is paired with, once the last of them has arrived. :class:`PairRegistrationProcess` does that in a process
 of its own, which runs ahead of the labelling while the labelling's Python runs on the other core (KISS-ICP's
-alignment holds the GIL, so a thread would not).
+alignment holds the GIL, so a thread would not). It registers on one thread (``threads``), so that its poses do not
+depend on the order in which threads add up their sums.
 """
 
 from __future__ import annotations
@@ -57,10 +58,14 @@ class PairRegistrationConfig:
     #: points a voxel of the map keeps (as in KISS-ICP's own map; 5 is faster and lost on simulated jams:
     #: benchmarks/autolabel.md, round 28)
     map_points: int = 20
+    #: KISS-ICP's threads for each pair (0: every core): on several its sums add up in an order that varies with the
+    #: machine's load, and a drive labelled twice got other poses (benchmarks/autolabel.md, round 51). Two processes
+    #: of one thread each, every other scan's pairs in each, were no faster than one on a 64-beam drive.
+    threads: int = 1
 
     def __post_init__(self) -> None:
-        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points"),
-                      whole=("from_offset", "iterations", "min_points", "map_points", "dense_rows"))
+        check_numbers(self, "pair registration", zero_ok=("from_offset", "min_points", "threads"),
+                      whole=("from_offset", "iterations", "min_points", "map_points", "dense_rows", "threads"))
 
     def source_voxel_for(self, rows: int) -> float:
         """The voxel (m) the registered scans of a sensor with ``rows`` rows are thinned with."""
@@ -88,7 +93,7 @@ class PairRegistration:
         self.config = config
         self.source_voxel = config.source_voxel_for(rows)
         self._registration = Registration(max_num_iterations=config.iterations,
-                                          convergence_criterion=config.convergence)
+                                          convergence_criterion=config.convergence, max_num_threads=config.threads)
         #: (a, b) with a < b: scan b's pose in scan a's frame
         self._relative: dict[tuple[int, int], np.ndarray] = {}
         self._thinned: dict[int, np.ndarray] = {}  # scan -> its points thinned to one per source voxel
