@@ -340,8 +340,9 @@ class OdometryConfig:
                            choices=("all", "static"))
     # Its parallel sums add up in an order that varies with the machine's load: poses 1e-14 apart from run to run,
     # which an ICP stopping at a step of 1e-3 can grow into another pose (autolabel uses 1: repeatable labels).
+    # KISS-ICP sets it for the whole process, from the first registration built there.
     threads: int = knob(0, "KISS-ICP's registration threads (0 = every core; 1: the same poses to the bit from run "
-                           "to run)", min=0, max=256)
+                           "to run); KISS-ICP takes it from the first odometry a process builds", min=0, max=256)
 
     def __post_init__(self) -> None:
         check_knobs(self, "odometry")

@@ -270,8 +270,9 @@ def _restart(clouds: Iterator[np.ndarray], poses: np.ndarray, config: OdometryCo
 
 #: KISS-ICP for autolabel's poses: on one thread, as the pair registration (``PairRegistrationConfig.threads``), so
 #: that a drive labelled twice gets the same labels: with every core its sums add up in an order that varies with the
-#: machine's load, and the poses 1e-14 apart grew into another mover on a drive whose mover sat on a share's bar
-#: (benchmarks/autolabel.md, round 51)
+#: machine's load (benchmarks/autolabel.md, round 51). KISS-ICP fixes its threads for the whole process when its first
+#: registration is built: the CLI's autolabel builds the pairs' first, each worker process its own; a script that ran
+#: the online pipeline (every core) before it labels with KISS-ICP on every core.
 REPEATABLE_ODOMETRY = OdometryConfig(threads=1)
 
 
