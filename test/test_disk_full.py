@@ -154,6 +154,10 @@ def test_map_and_tables_on_a_full_disk_leave_nothing(tmp_path, full_disk):
     with pytest.raises(OutputError, match="No space left on device"):
         write_text_atomically(tmp_path / "table.md", "x" * 1000)
     assert _files(tmp_path) == []
+    # into folders made for it: they go too (a folder that was there stays)
+    with pytest.raises(OutputError, match=r"cannot write .*maps/new/m\.ply: No space left on device"):
+        write_map(tmp_path / "maps" / "new" / "m.ply", points)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
 def test_the_console_script_prints_one_line(tmp_path, tiny_model_path, full_disk, monkeypatch, capsys):

@@ -436,7 +436,6 @@ def write_map(path: str | Path, points: np.ndarray, colors: np.ndarray | None = 
     if len(rgb) != len(pts):
         raise ScanError(f"write_map: {len(rgb)} colours for {len(pts)} points")
     suffix = path.suffix.lower()
-    path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".ply":
         import trimesh
 

@@ -28,30 +28,32 @@ def output_error(path: str | Path, exc: OSError) -> OutputError:
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write to; renamed onto ``path`` when the block completes, removed when
-    it raises. An OSError (in the block, or creating the folder, or renaming) becomes an :class:`OutputError`."""
+    it raises (with the folders made for it, where still empty). An OSError (in the block, or creating the folder,
+    or renaming) becomes an :class:`OutputError`."""
     path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-        os.close(fd)
-    except OSError as exc:
-        raise output_error(path, exc) from None
-    tmp = Path(name)
-    try:
+    with folder_kept_on_success(path.parent, named=path):
         try:
-            yield tmp
-            os.chmod(tmp, 0o644)  # mkstemp makes 0600 files; outputs are meant to be read by others
-            tmp.replace(path)
+            fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+            os.close(fd)
         except OSError as exc:
             raise output_error(path, exc) from None
-    finally:
-        tmp.unlink(missing_ok=True)
+        tmp = Path(name)
+        try:
+            try:
+                yield tmp
+                os.chmod(tmp, 0o644)  # mkstemp makes 0600 files; outputs are meant to be read by others
+                tmp.replace(path)
+            except OSError as exc:
+                raise output_error(path, exc) from None
+        finally:
+            tmp.unlink(missing_ok=True)
 
 
 @contextmanager
-def folder_kept_on_success(folder: str | Path) -> Iterator[Path]:
+def folder_kept_on_success(folder: str | Path, named: str | Path | None = None) -> Iterator[Path]:
     """``folder``, made with its missing parents; where the block raises, the folders it made are removed again
-    (those still empty), so that a failed command leaves no empty ``OUT/sequences/`` behind."""
+    (those still empty), so that a failed command leaves no empty ``OUT/sequences/`` behind. An error making it
+    names ``named`` (the file to be written there), else the folder."""
     folder = Path(folder)
     made: list[Path] = []
     p = folder
@@ -61,7 +63,7 @@ def folder_kept_on_success(folder: str | Path) -> Iterator[Path]:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise output_error(folder, exc) from None
+        raise output_error(folder if named is None else named, exc) from None
     try:
         yield folder
     except BaseException:
