@@ -27,7 +27,7 @@ from ros2_mos.core.projection import finite_mask
 from ros2_mos.io.labels import IGNORE, MOVING, to_moving_classes
 from ros2_mos.io.semantic_kitti import KITTI_TR
 from ros2_mos.io.sweep import read_sweep_file
-from ros2_mos.offline.drives import Drive, DriveScan, FolderDrive, given_poses
+from ros2_mos.offline.drives import Drive, DriveScan, FolderDrive, given_poses, scan_place
 
 # Per-point tags a map keeps (ground truth of the scan point a map point came from).
 TAG_STATIC = 0
@@ -314,7 +314,7 @@ def build_maps(
             res = pipeline.process(scan.points, scan.intensity, scan.stamp,
                                    pose=given[scan.index] if given is not None else None)
         except ScanError as exc:
-            raise scan_refused(exc, f"{drive.name} scan {scan.index} ({drive.scan_names[scan.index]})") from exc
+            raise scan_refused(exc, scan_place(drive, scan.index)) from exc
         poses.append(res.pose)
         moving.append(np.packbits(res.labels.astype(bool)))  # a bit per point: bounded for a long drive
         stamps.append(scan.stamp)

@@ -99,8 +99,7 @@ def _mos_frames(
         try:
             result = pipeline.process(frame.points, frame.remission, frame.timestamp)
         except ScanError as exc:
-            raise scan_refused(exc, f"{sequence.name} scan {frame.index} ({sequence.scan_files[frame.index].name})") \
-                from exc
+            raise scan_refused(exc, sequence.scan_place(frame.index)) from exc
         n_valid = int(result.valid.sum())
         masked = float(result.labels[result.valid].sum()) / n_valid if n_valid else 0.0
         yield result.pose, (time.perf_counter() - start) * 1e3, masked

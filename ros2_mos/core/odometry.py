@@ -62,7 +62,7 @@ class KissIcpOdometry:
         reg = cfg.registration
         self._pybind = kiss_icp_pybind
         first = min(ICP_FIRST_SLICE, int(reg.max_num_iterations))
-        self._slices = [kiss_icp_pybind._Registration(max_num_iterations=n, max_num_threads=config.threads,
+        self._slices = [kiss_icp_pybind._Registration(max_num_iterations=n, max_num_threads=reg.max_num_threads,
                                                       convergence_criterion=reg.convergence_criterion)
                         for n in (first, ICP_SLICE)]
         self._more_slices = -(-(int(reg.max_num_iterations) - first) // ICP_SLICE)

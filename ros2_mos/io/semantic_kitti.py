@@ -261,6 +261,10 @@ class SemanticKittiSequence:
             raise DatasetError(f"{why} need poses.txt: {reason}")
         return self.poses[: len(self)]
 
+    def scan_place(self, index: int) -> str:
+        """Where scan ``index`` is, for a message: ``"08 scan 5 (000005.bin)"``."""
+        return f"{self.name} scan {index} ({self.scan_files[index].name})"
+
     def label_path(self, index: int) -> Path:
         return self.root / "labels" / (self.scan_files[index].stem + ".label")
 

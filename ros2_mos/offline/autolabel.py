@@ -49,7 +49,7 @@ from ros2_mos.io.labels import to_submission
 from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.io.sweep import write_sweep_file
 from ros2_mos.offline.cue import OnlineCue, OnlineCueProcess
-from ros2_mos.offline.drives import Drive, given_poses
+from ros2_mos.offline.drives import Drive, given_poses, scan_place
 from ros2_mos.offline.objects import (
     ObjectConfig,
     VehicleReturns,
@@ -366,8 +366,8 @@ class AutoLabeler:
         poses, stamps, sizes = [], [], []
         for scan in drive:
             if len(scan.points) == 0:
-                raise DatasetError(f"{drive.name} scan {scan.index} ({drive.scan_names[scan.index]}): no finite "
-                                   "points; fix or remove that scan and run again")
+                raise DatasetError(f"{scan_place(drive, scan.index)}: no finite points; fix or remove that scan and "
+                                   "run again")
             problem = mismatch_message(scan.points, self.sensor) if scan.index % SENSOR_CHECK_EVERY == 0 else None
             if problem:
                 raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")

@@ -40,6 +40,11 @@ class Drive(Protocol):
     def __iter__(self) -> Iterator[DriveScan]: ...
 
 
+def scan_place(drive: Drive, index: int) -> str:
+    """Where scan ``index`` of ``drive`` is, for a message: ``"DRIVE scan 5 (000005)"``."""
+    return f"{drive.name} scan {index} ({drive.scan_names[index]})"
+
+
 def _scan(index: int, stamp: float, points: np.ndarray, intensity: np.ndarray) -> DriveScan:
     """The finite points with a range > 0, and where they sit among the stored ones (a point whose squared range
     overflows float32, 1.8e19 m, is not finite either)."""

@@ -41,8 +41,7 @@ def predict_sequence(
         try:
             result = pipeline.process(frame.points, frame.remission, frame.timestamp, pose=pose)
         except ScanError as exc:
-            raise scan_refused(exc, f"{sequence.name} scan {frame.index} ({sequence.scan_files[frame.index].name})") \
-                from exc
+            raise scan_refused(exc, sequence.scan_place(frame.index)) from exc
         gt = None if frame.labels is None else to_moving_classes(frame.labels)
         yield ScanPrediction(frame.index, result, gt)
 
