@@ -1985,18 +1985,87 @@ def test_pairs_and_cue_in_processes_of_their_own_label_as_in_this_one(jam, tmp_p
             raise KeyboardInterrupt
 
     original = worker.Worker
-    for module in ("viewpoints", "cue"):
+    modules = ("viewpoints", "cue", "kiss_passes")
+    for module in modules:
         setattr(importlib.import_module(f"ros2_mos.offline.{module}"), "Worker", Watched)
     try:
         labeler = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(processes_from=1))
         (tmp_path / "interrupted").mkdir()
         with pytest.raises(KeyboardInterrupt):
             labeler.label(drive, tmp_path / "interrupted", interrupt)
+        assert sorted(w.name for w in started) == ["backward KISS-ICP pass", "online cue", "pair registration"]
+        assert all(w.returncode is not None for w in started)  # stopped, not left running
+        # stopped midway through the forward pass: the backward one, in its process meanwhile, stops with it
+        started.clear()
+        (tmp_path / "poses").mkdir()
+
+        def interrupt_poses(stage: str, n: int, seen=[]) -> None:
+            seen.append(stage)
+            if len(seen) == 12:
+                raise KeyboardInterrupt
+
+        with pytest.raises(KeyboardInterrupt):
+            labeler.label(drive, tmp_path / "poses", interrupt_poses)
+        assert "backward KISS-ICP pass" in [w.name for w in started]
+        assert all(w.returncode is not None for w in started)
+        assert not list((tmp_path / "poses").glob("kiss*.npy"))  # its kept clouds are gone too
     finally:
-        for module in ("viewpoints", "cue"):
+        for module in modules:
             setattr(importlib.import_module(f"ros2_mos.offline.{module}"), "Worker", original)
-    assert sorted(w.name for w in started) == ["online cue", "pair registration"]
-    assert all(w.returncode is not None for w in started)  # stopped, not left running
+
+
+def test_the_backward_pass_beside_the_forward_one_gives_the_poses_it_gives_after_it(jam, tmp_path, monkeypatch):
+    """The backward KISS-ICP pass in a process of its own, reading the drive itself while the forward pass runs,
+    and the same pass run here afterwards over the clouds the forward one kept: the same poses, to the bit. A drive
+    that cannot go to another process (it does not pickle) has its backward pass here."""
+    import ros2_mos.offline.autolabel as autolabel_module
+    from ros2_mos.offline.kiss_passes import BackwardPass
+
+    monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps: True)
+    monkeypatch.setattr(autolabel_module, "farther_pass", lambda forward, backward, *margins, **prefer: (backward, "b"))
+    drive = FolderDrive(jam / "sequences" / "00")
+    started = []
+    real_start = BackwardPass.start
+
+    def start(*args):
+        started.append(real_start(*args))
+        return started[-1]
+
+    monkeypatch.setattr(BackwardPass, "start", start)
+    poses = {}
+    for processes_from in (1, 0):
+        work = tmp_path / f"work{processes_from}"
+        work.mkdir()
+        labeler = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(processes_from=processes_from,
+                                                                        online_cue=False))
+        result = labeler.label(drive, work)
+        assert result.odometry_followed == "b"
+        poses[processes_from] = result.poses
+        assert not list(work.glob("kiss*.npy"))
+    assert len(started) == 1 and started[0].going  # beside the forward pass once, not here
+    np.testing.assert_array_equal(poses[1], poses[0])
+
+    # a drive on which the sensor never stood: the process only reads it, is never told to register, and stops
+    monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps: False)
+    (tmp_path / "never").mkdir()
+    result = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(processes_from=1, online_cue=False)).label(
+        drive, tmp_path / "never")
+    assert result.odometry_followed == "" and not started[-1].going
+    assert started[-1]._worker.returncode is not None
+    assert not list((tmp_path / "never").glob("kiss*.npy"))
+
+    class Unpicklable(FolderDrive):
+        def __init__(self, root):
+            super().__init__(root)
+            self.on_the_side = lambda: None  # a lambda does not pickle
+
+    monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps: True)
+    work = tmp_path / "unpicklable"
+    work.mkdir()
+    result = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(processes_from=1, online_cue=False)).label(
+        Unpicklable(jam / "sequences" / "00"), work)
+    assert started[-1] is None  # not in a process of its own
+    np.testing.assert_array_equal(result.poses, poses[0])
 
 
 def test_find_objects_finds_the_same_objects_on_the_compiled_kernels_and_the_numpy_code(jam):

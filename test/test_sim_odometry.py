@@ -111,3 +111,21 @@ def test_assume_motion_starts_the_motion_model_and_refuses_garbage():
     for bad in (np.eye(3), np.full((4, 4), np.nan)):
         with pytest.raises(ConfigError):
             odometry.assume_motion(bad)
+
+
+def test_the_frame_kiss_icp_keeps_depends_on_the_scan_alone():
+    """kept_frame: the scan as registering it keeps it (last_frame), without registering it, whatever the map and
+    the motion model are (autolabel's backward pass keeps each scan so in a process of its own)."""
+    from ros2_mos.core.config import OdometryConfig
+    from ros2_mos.core.odometry import KissIcpOdometry
+
+    sim = SequenceSimulator(6, "easy", seed=7)
+    config = OdometryConfig(threads=1, point_stride=2)
+    registering, fresh = KissIcpOdometry(config), KissIcpOdometry(config)
+    for item in sim:
+        points = item.scan.points.astype(np.float32)
+        registering.register(points)
+        kept = fresh.kept_frame(points)
+        np.testing.assert_array_equal(kept, registering.last_frame)
+        assert 0 < len(kept) < len(points)  # thinned
+    assert np.allclose(fresh.last_pose, np.eye(4))  # kept_frame registered nothing

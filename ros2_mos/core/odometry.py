@@ -90,11 +90,7 @@ class KissIcpOdometry:
         Call :meth:`update_map` afterwards (with all or only static points) before the next scan.
         """
         kiss = self._kiss
-        stride = self.config.point_stride
-        frame = np.asarray(points[::stride], dtype=np.float64)
-        stamps = np.asarray([] if timestamps is None else np.asarray(timestamps)[::stride], dtype=np.float64)
-        frame = kiss.preprocessor.preprocess(frame, stamps, kiss.last_delta)
-        source, frame_downsample = kiss.voxelize(frame)
+        source, frame_downsample = self._frames(points, timestamps)
         sigma = kiss.adaptive_threshold.get_threshold()
         initial_guess = kiss.last_pose @ kiss.last_delta
         new_pose = self._align(source, initial_guess, sigma)
@@ -106,6 +102,20 @@ class KissIcpOdometry:
         #: ``point_stride`` 1 it registers like the scan (autolabel's backward pass keeps these, not whole scans)
         self.last_frame = frame_downsample
         return new_pose.copy()
+
+    def kept_frame(self, points: np.ndarray) -> np.ndarray:
+        """The scan as :meth:`estimate` keeps it (``last_frame``), without registering it: without per-point times
+        that depends on the scan alone (autolabel's backward pass keeps each scan so while the forward one runs)."""
+        return self._frames(points, None)[1]
+
+    def _frames(self, points: np.ndarray, timestamps: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """KISS-ICP's (source, frame_downsample) of a scan: thinned by ``point_stride``, preprocessed (range
+        filter; deskewed with the motion model where per-point times are given) and voxelised."""
+        kiss = self._kiss
+        stride = self.config.point_stride
+        frame = np.asarray(points[::stride], dtype=np.float64)
+        stamps = np.asarray([] if timestamps is None else np.asarray(timestamps)[::stride], dtype=np.float64)
+        return kiss.voxelize(kiss.preprocessor.preprocess(frame, stamps, kiss.last_delta))
 
     def _align(self, source: np.ndarray, initial_guess: np.ndarray, sigma: float) -> np.ndarray:
         """KISS-ICP's ``align_points_to_map`` in slices (``ICP_FIRST_SLICE``, then ``ICP_SLICE`` iterations each).

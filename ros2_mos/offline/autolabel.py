@@ -28,13 +28,12 @@ The steps (:meth:`AutoLabeler.label`: :meth:`~AutoLabeler.track` does 1, 2 and t
 from __future__ import annotations
 
 import csv
-import dataclasses
 import shutil
 import tempfile
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -50,6 +49,7 @@ from ros2_mos.io.semantic_kitti import write_label, write_poses, write_times
 from ros2_mos.io.sweep import write_sweep_file
 from ros2_mos.offline.cue import OnlineCue, OnlineCueProcess
 from ros2_mos.offline.drives import Drive, given_poses, scan_place
+from ros2_mos.offline.kiss_passes import BackwardPass, backward_poses, frame_path, restart
 from ros2_mos.offline.objects import (
     ObjectConfig,
     VehicleReturns,
@@ -74,15 +74,18 @@ from ros2_mos.offline.trajectory import farther_pass, starts_from_rest
 from ros2_mos.offline.viewpoints import PairRegistration, PairRegistrationConfig
 from ros2_mos.offline.visibility import SeenScan
 
+if TYPE_CHECKING:
+    from ros2_mos.core.odometry import KissIcpOdometry
+
 #: Fewer scans give no future or past to compare with.
 MIN_SCANS = 2
 #: Every this many scans, the scan is checked against the sensor (rings and field of view; ~20 ms for a 64-beam
 #: scan): a drive of mixed sensors is refused before anything is written.
 SENSOR_CHECK_EVERY = 10
-#: The first RESTART_FROM scans' poses come from a second KISS-ICP pass over the first RESTART_SCANS scans that
-#: starts with the velocity the first pass found at scan RESTART_FROM (:meth:`AutoLabeler._restart`).
-RESTART_FROM = 8
-RESTART_SCANS = 14
+#: Every this many scans of the forward KISS-ICP pass, its poses so far are checked for a stand and a move off, to
+#: start the backward pass in its process (:class:`~ros2_mos.offline.kiss_passes.BackwardPass`) as soon as it is
+#: wanted.
+REST_CHECK_EVERY = 10
 #: The KISS-ICP pass ``AutolabelConfig.odometry_prefer`` names, as :func:`farther_pass` names it.
 ODOMETRY_PASSES = {"forward": "f", "backward": "b"}
 #: How the instant convention measures an object's motion between observations: the box edges that moved together
@@ -241,33 +244,6 @@ def progress_steps(scans: int, config: AutolabelConfig) -> int:
     return passes * scans
 
 
-def _restart(clouds: Iterator[np.ndarray], poses: np.ndarray, config: OdometryConfig) -> np.ndarray:
-    """Register a pass's first scans again (``clouds`` in the pass's order), knowing how fast it moved.
-
-    KISS-ICP starts from rest: when the drive starts under way, the first scans are registered a step or more
-    off (0.7-1.2 m measured on a simulated drive starting at 7.7 m/s) and would see through everything that
-    stands. They are registered again from a start with the velocity of scans :data:`RESTART_FROM` on, and
-    chained to the first pass's poses there. (Backwards, the drive's end is that pass's start.)
-    """
-    from ros2_mos.core.odometry import KissIcpOdometry
-
-    n = len(poses)
-    if n <= RESTART_SCANS:
-        return poses
-    odometry = KissIcpOdometry(config)
-    odometry.assume_motion(np.linalg.inv(poses[RESTART_FROM]) @ poses[RESTART_FROM + 1])
-    again = []
-    for cloud in clouds:
-        if len(again) >= RESTART_SCANS:
-            break
-        again.append(odometry.register(cloud))
-    again = np.asarray(again)
-    anchor = poses[RESTART_FROM] @ np.linalg.inv(again[RESTART_FROM])
-    out = poses.copy()
-    out[:RESTART_FROM] = anchor @ again[:RESTART_FROM]
-    return out
-
-
 #: KISS-ICP for autolabel's poses: on one thread, as the pair registration (``PairRegistrationConfig.threads``), so
 #: that a drive labelled twice gets the same labels: with every core its sums add up in an order that varies with the
 #: machine's load (benchmarks/autolabel.md, round 51). KISS-ICP fixes its threads for the whole process when its first
@@ -362,7 +338,24 @@ class AutoLabeler:
         use_own = self.config.use_poses
         own = given_poses(drive, "--use-poses") if use_own else None
         odometry = None if use_own else KissIcpOdometry(self.odometry_config)
-        keep = not use_own and self.config.backward_odometry
+        wanted = not use_own and self.config.backward_odometry
+        beside = BackwardPass.start(drive, self.odometry_config, workdir) if wanted and self.config.in_processes(
+            len(drive)) else None
+        try:
+            return self._passes(drive, vehicle, workdir, progress, own, odometry, wanted, beside)
+        finally:
+            if beside is not None:
+                beside.close()
+            for path in workdir.glob("kiss*.npy"):  # the clouds kept for the backward pass
+                path.unlink()
+
+    def _passes(self, drive: Drive, vehicle: VehicleReturns, workdir: Path, progress: ProgressFn,
+                own: np.ndarray | None, odometry: KissIcpOdometry | None, wanted: bool,
+                beside: BackwardPass | None) -> tuple[np.ndarray, np.ndarray, list[int], str]:
+        """:meth:`_poses` with its stages built: the forward pass here (or the drive's ``own`` poses), the backward
+        one where ``wanted``: in ``beside``'s process, else here after the forward one, over the clouds that one
+        kept."""
+        keep = wanted and beside is None
         poses, stamps, sizes = [], [], []
         for scan in drive:
             if len(scan.points) == 0:
@@ -374,42 +367,33 @@ class AutoLabeler:
             if odometry is not None:
                 poses.append(odometry.register(scan.points))
                 if keep:
-                    np.save(workdir / f"kiss{scan.index:06d}.npy", odometry.last_frame)
+                    np.save(frame_path(workdir, scan.index), odometry.last_frame)
             vehicle.add(scan.points, poses[-1] if odometry is not None else own[scan.index])
             stamps.append(scan.stamp)
             sizes.append(len(scan.points))
+            if beside is not None and scan.index % REST_CHECK_EVERY == 0 and starts_from_rest(poses, stamps):
+                beside.go()  # the sensor stood and moved off: the backward pass is wanted (the poses' restart
+                # below may still change that: then its poses are not asked for)
             progress("poses", 1)
-        if use_own:
+        if own is not None:
             return np.asarray(own[: len(stamps)], np.float64), np.asarray(stamps), sizes, ""
-        forward = _restart((scan.points for scan in drive), np.asarray(poses, np.float64), self.odometry_config)
+        forward = restart((scan.points for scan in drive), np.asarray(poses, np.float64), self.odometry_config)
         stamps = np.asarray(stamps)
-        if not keep:
+        if not wanted:
             return forward, stamps, sizes, ""
-        poses, followed = forward, ""
-        if starts_from_rest(forward, stamps):  # else there is nothing for KISS-ICP to fall behind at
-            backward = self._backward(workdir, len(forward), progress)
-            poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
-                                           self.config.odometry_margin_share,
-                                           prefer=ODOMETRY_PASSES[self.config.odometry_prefer])
-        else:
+        if not starts_from_rest(forward, stamps):  # nothing for KISS-ICP to fall behind at
             progress("backward", len(forward))
-        for path in workdir.glob("kiss*.npy"):  # the clouds kept for the backward pass
-            path.unlink()
+            return forward, stamps, sizes, ""
+        if beside is not None:
+            backward = beside.poses()
+            progress("backward", len(forward))
+        else:
+            backward = backward_poses(workdir, len(forward), self.odometry_config,
+                                      lambda done: progress("backward", done))
+        poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
+                                       self.config.odometry_margin_share,
+                                       prefer=ODOMETRY_PASSES[self.config.odometry_prefer])
         return poses, stamps, sizes, followed
-
-    def _backward(self, workdir: Path, n: int, progress: ProgressFn) -> np.ndarray:
-        """KISS-ICP over the clouds the forward pass kept, last scan first; poses in scan order."""
-        from ros2_mos.core.odometry import KissIcpOdometry
-
-        config = dataclasses.replace(self.odometry_config, point_stride=1)  # the kept clouds are thinned already
-        paths = [workdir / f"kiss{k:06d}.npy" for k in range(n - 1, -1, -1)]
-        odometry = KissIcpOdometry(config)
-        poses = []
-        for path in paths:
-            poses.append(odometry.register(np.load(path)))
-            progress("backward", 1)
-        poses = _restart((np.load(path) for path in paths), np.asarray(poses), config)
-        return poses[::-1].copy()
 
     def _helpers(self, n: int) -> tuple[PairRegistration, OnlineCue | None]:
         """The scan pairs' registration and the online cue (None without one) for a drive of ``n`` scans: each in a
