@@ -5,9 +5,10 @@ The steps (:meth:`AutoLabeler.label`: :meth:`~AutoLabeler.track` does 1, 2 and t
 ``benchmarks/autolabel_rules.py``), each a stage built once:
 
 1. **Poses**: KISS-ICP over the drive (or the drive's own poses); where the sensor stood and moved off, KISS-ICP
-   backwards too, and the pass that did not fall behind (the backward one where neither travelled clearly farther:
-   :mod:`~ros2_mos.offline.trajectory`). The same pass finds
-   the returns of the vehicle carrying the sensor (:class:`~ros2_mos.offline.objects.VehicleReturns`).
+   backwards too (in a process of its own beside the forward pass: :mod:`~ros2_mos.offline.kiss_passes`), and the
+   pass that did not fall behind (the backward one where neither travelled clearly farther:
+   :mod:`~ros2_mos.offline.trajectory`). The same pass finds the returns of the vehicle carrying the sensor
+   (:class:`~ros2_mos.offline.objects.VehicleReturns`).
 2. **Objects and evidence**, in a window sliding over the drive: each scan is deskewed where its sweeps are skewed
    (``AutolabelConfig.deskew``, :mod:`~ros2_mos.core.deskew`), its ground removed and the rest cut into
    object-sized segments (:mod:`~ros2_mos.offline.objects`); each object's points are checked against the range
@@ -183,8 +184,9 @@ class AutolabelConfig:
     deskew: str = "auto"
     #: Drives of this many scans or more have their scan pairs registered (:mod:`~ros2_mos.offline.viewpoints`) and
     #: the online cue computed (:mod:`~ros2_mos.offline.cue`) each in a process of its own, up to ``process_lead``
-    #: scans ahead of the scan being labelled, while this one finds objects (0: never); shorter drives in this
-    #: process, where starting one (~0.6 s) costs more than it saves
+    #: scans ahead of the scan being labelled, while this one finds objects, and the backward KISS-ICP pass beside
+    #: the forward one (:mod:`~ros2_mos.offline.kiss_passes`; 0: never); shorter drives in this process, where
+    #: starting one (~0.6 s) costs more than it saves
     processes_from: int = 50
     process_lead: int = 8
 
@@ -205,7 +207,8 @@ class AutolabelConfig:
                       at_most_one=("instant_seen_through",), whole=("processes_from", "process_lead"))
 
     def in_processes(self, scans: int) -> bool:
-        """Whether a drive of ``scans`` scans has its pairs and cue in processes of their own (``processes_from``)."""
+        """Whether a drive of ``scans`` scans has its pairs, cue and backward KISS-ICP pass in processes of their own
+        (``processes_from``)."""
         return 0 < self.processes_from <= scans
 
     @property
