@@ -2060,6 +2060,21 @@ def test_the_backward_pass_beside_the_forward_one_gives_the_poses_it_gives_after
             self.on_the_side = lambda: None  # a lambda does not pickle
 
     monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps: True)
+    # a bag: the process reads it itself too
+    from ros2_mos.offline.drives import BagDrive
+
+    made = runner.invoke(app, ["simulate", str(tmp_path / "sim"), "--sequences", "00", "--scans", "16", "--preset",
+                               "traffic_jam", "--sensor", "vlp32c", "--seed", "5", "--bag"])
+    assert made.exit_code == 0, made.output
+    bag_poses = []
+    for processes_from in (1, 0):
+        work = tmp_path / f"bag{processes_from}"
+        work.mkdir()
+        bag_poses.append(AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(
+            processes_from=processes_from, online_cue=False)).label(BagDrive(tmp_path / "sim" / "bags" / "00"),
+                                                                    work).poses)
+    assert isinstance(started[-1], BackwardPass) and started[-1].going
+    np.testing.assert_array_equal(bag_poses[0], bag_poses[1])
     work = tmp_path / "unpicklable"
     work.mkdir()
     result = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(processes_from=1, online_cue=False)).label(
