@@ -2014,6 +2014,21 @@ def test_pairs_and_cue_in_processes_of_their_own_label_as_in_this_one(jam, tmp_p
             setattr(importlib.import_module(f"ros2_mos.offline.{module}"), "Worker", original)
 
 
+def test_a_backward_pass_process_that_dies_is_one_line_naming_it(jam, tmp_path):
+    from ros2_mos.core.errors import WorkerError
+    from ros2_mos.offline.autolabel import REPEATABLE_ODOMETRY
+    from ros2_mos.offline.kiss_passes import BackwardPass
+
+    killed = BackwardPass(FolderDrive(jam / "sequences" / "00"), REPEATABLE_ODOMETRY, tmp_path)
+    try:
+        killed._worker._process.kill()  # as the kernel's OOM killer would
+        with pytest.raises(WorkerError, match="backward KISS-ICP pass process ended without its result"):
+            killed.poses()
+    finally:
+        killed.close()
+    assert killed._worker.returncode is not None
+
+
 def test_the_backward_pass_beside_the_forward_one_gives_the_poses_it_gives_after_it(jam, tmp_path, monkeypatch):
     """The backward KISS-ICP pass in a process of its own, reading the drive itself while the forward pass runs,
     and the same pass run here afterwards over the clouds the forward one kept: the same poses, to the bit. A drive
