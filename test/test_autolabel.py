@@ -2031,8 +2031,8 @@ def test_a_backward_pass_process_that_dies_is_one_line_naming_it(jam, tmp_path):
 
 def test_the_backward_pass_beside_the_forward_one_gives_the_poses_it_gives_after_it(jam, tmp_path, monkeypatch):
     """The backward KISS-ICP pass in a process of its own, reading the drive itself while the forward pass runs,
-    and the same pass run here afterwards over the clouds the forward one kept: the same poses, to the bit. A drive
-    that cannot go to another process (it does not pickle) has its backward pass here."""
+    and the same pass run here afterwards over the clouds the forward one kept: the same poses. A drive that cannot
+    go to another process (it does not pickle) has its backward pass here."""
     import ros2_mos.offline.autolabel as autolabel_module
     from ros2_mos.offline.kiss_passes import BackwardPass
 
@@ -2058,7 +2058,10 @@ def test_the_backward_pass_beside_the_forward_one_gives_the_poses_it_gives_after
         poses[processes_from] = result.poses
         assert not list(work.glob("kiss*.npy"))
     assert len(started) == 1 and started[0].going  # beside the forward pass once, not here
-    np.testing.assert_array_equal(poses[1], poses[0])
+    # to the bit where this process runs KISS-ICP on one thread, as the command does (benchmarks/autolabel.md, round
+    # 52: label files identical); in pytest's process, which built KISS-ICP on every core first (round 51), its sums
+    # may add up in another order: 1e-15 apart. Other clouds would be millimetres apart.
+    np.testing.assert_allclose(poses[1], poses[0], rtol=0, atol=1e-9)
 
     # a drive on which the sensor never stood: the process only reads it, is never told to register, and stops
     monkeypatch.setattr(autolabel_module, "starts_from_rest", lambda poses, stamps: False)
@@ -2089,7 +2092,7 @@ def test_the_backward_pass_beside_the_forward_one_gives_the_poses_it_gives_after
             processes_from=processes_from, online_cue=False)).label(BagDrive(tmp_path / "sim" / "bags" / "00"),
                                                                     work).poses)
     assert isinstance(started[-1], BackwardPass) and started[-1].going
-    np.testing.assert_array_equal(bag_poses[0], bag_poses[1])
+    np.testing.assert_allclose(bag_poses[0], bag_poses[1], rtol=0, atol=1e-9)
     work = tmp_path / "unpicklable"
     work.mkdir()
     result = AutoLabeler(sensor_preset("vlp32c"), AutolabelConfig(processes_from=1, online_cue=False)).label(

@@ -374,7 +374,8 @@ class AutoLabeler:
             vehicle.add(scan.points, poses[-1] if odometry is not None else own[scan.index])
             stamps.append(scan.stamp)
             sizes.append(len(scan.points))
-            if beside is not None and scan.index % REST_CHECK_EVERY == 0 and starts_from_rest(poses, stamps):
+            if beside is not None and not beside.going and scan.index % REST_CHECK_EVERY == 0 \
+                    and starts_from_rest(poses, stamps):
                 beside.go()  # the sensor stood and moved off: the backward pass is wanted (the poses' restart
                 # below may still change that: then its poses are not asked for)
             progress("poses", 1)
