@@ -34,7 +34,7 @@ import tempfile
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -74,9 +74,6 @@ from ros2_mos.offline.tracks import (
 from ros2_mos.offline.trajectory import farther_pass, starts_from_rest
 from ros2_mos.offline.viewpoints import PairRegistration, PairRegistrationConfig
 from ros2_mos.offline.visibility import SeenScan
-
-if TYPE_CHECKING:
-    from ros2_mos.core.odometry import KissIcpOdometry
 
 #: Fewer scans give no future or past to compare with.
 MIN_SCANS = 2
@@ -332,9 +329,10 @@ class AutoLabeler:
 
     def _poses(self, drive: Drive, vehicle: VehicleReturns, workdir: Path,
                progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, list[int], str]:
-        """Step 1: the poses (KISS-ICP's forwards, and backwards over the clouds it kept in ``workdir``; or the
-        drive's own), the stamps, the point counts and which KISS-ICP pass the poses are ('f' or 'b':
-        :func:`farther_pass`; "" with one pass: the backward one runs only where the sensor stood and moved off);
+        """Step 1: the poses (KISS-ICP's forwards, and backwards: in a process of its own beside the forward pass
+        (:class:`~ros2_mos.offline.kiss_passes.BackwardPass`), else here over the clouds the forward pass kept in
+        ``workdir``; or the drive's own), the stamps, the point counts and which KISS-ICP pass the poses are ('f' or
+        'b': :func:`farther_pass`; "" with one pass: the backward one runs only where the sensor stood and moved off);
         each scan's returns near the sensor go to ``vehicle``."""
         from ros2_mos.core.odometry import KissIcpOdometry
 
@@ -344,60 +342,53 @@ class AutoLabeler:
         wanted = not use_own and self.config.backward_odometry
         beside = BackwardPass.start(drive, self.odometry_config, workdir) if wanted and self.config.in_processes(
             len(drive)) else None
+        keep = wanted and beside is None
         try:
-            return self._passes(drive, vehicle, workdir, progress, own, odometry, wanted, beside)
+            poses, stamps, sizes = [], [], []
+            for scan in drive:
+                if len(scan.points) == 0:
+                    raise DatasetError(f"{scan_place(drive, scan.index)}: no finite points; fix or remove that scan "
+                                       "and run again")
+                problem = mismatch_message(scan.points, self.sensor) if scan.index % SENSOR_CHECK_EVERY == 0 \
+                    else None
+                if problem:
+                    raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")
+                if odometry is not None:
+                    poses.append(odometry.register(scan.points))
+                    if keep:
+                        np.save(frame_path(workdir, scan.index), odometry.last_frame)
+                vehicle.add(scan.points, poses[-1] if odometry is not None else own[scan.index])
+                stamps.append(scan.stamp)
+                sizes.append(len(scan.points))
+                if beside is not None and not beside.going and scan.index % REST_CHECK_EVERY == 0 \
+                        and starts_from_rest(poses, stamps):
+                    beside.go()  # the sensor stood and moved off: the backward pass is wanted (the poses' restart
+                    # below may still change that: then its poses are not asked for)
+                progress("poses", 1)
+            if use_own:
+                return np.asarray(own[: len(stamps)], np.float64), np.asarray(stamps), sizes, ""
+            forward = restart((scan.points for scan in drive), np.asarray(poses, np.float64), self.odometry_config)
+            stamps = np.asarray(stamps)
+            if not wanted:
+                return forward, stamps, sizes, ""
+            if not starts_from_rest(forward, stamps):  # nothing for KISS-ICP to fall behind at
+                progress("backward", len(forward))
+                return forward, stamps, sizes, ""
+            if beside is not None:
+                backward = beside.poses()
+                progress("backward", len(forward))
+            else:
+                backward = backward_poses(workdir, len(forward), self.odometry_config,
+                                          lambda done: progress("backward", done))
+            poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
+                                           self.config.odometry_margin_share,
+                                           prefer=ODOMETRY_PASSES[self.config.odometry_prefer])
+            return poses, stamps, sizes, followed
         finally:
             if beside is not None:
                 beside.close()
             for path in workdir.glob("kiss*.npy"):  # the clouds kept for the backward pass
                 path.unlink()
-
-    def _passes(self, drive: Drive, vehicle: VehicleReturns, workdir: Path, progress: ProgressFn,
-                own: np.ndarray | None, odometry: KissIcpOdometry | None, wanted: bool,
-                beside: BackwardPass | None) -> tuple[np.ndarray, np.ndarray, list[int], str]:
-        """:meth:`_poses` with its stages built: the forward pass here (or the drive's ``own`` poses), the backward
-        one where ``wanted``: in ``beside``'s process, else here after the forward one, over the clouds that one
-        kept."""
-        keep = wanted and beside is None
-        poses, stamps, sizes = [], [], []
-        for scan in drive:
-            if len(scan.points) == 0:
-                raise DatasetError(f"{scan_place(drive, scan.index)}: no finite points; fix or remove that scan and "
-                                   "run again")
-            problem = mismatch_message(scan.points, self.sensor) if scan.index % SENSOR_CHECK_EVERY == 0 else None
-            if problem:
-                raise DatasetError(f"{drive.name} scan {scan.index}: {problem}")
-            if odometry is not None:
-                poses.append(odometry.register(scan.points))
-                if keep:
-                    np.save(frame_path(workdir, scan.index), odometry.last_frame)
-            vehicle.add(scan.points, poses[-1] if odometry is not None else own[scan.index])
-            stamps.append(scan.stamp)
-            sizes.append(len(scan.points))
-            if beside is not None and not beside.going and scan.index % REST_CHECK_EVERY == 0 \
-                    and starts_from_rest(poses, stamps):
-                beside.go()  # the sensor stood and moved off: the backward pass is wanted (the poses' restart
-                # below may still change that: then its poses are not asked for)
-            progress("poses", 1)
-        if own is not None:
-            return np.asarray(own[: len(stamps)], np.float64), np.asarray(stamps), sizes, ""
-        forward = restart((scan.points for scan in drive), np.asarray(poses, np.float64), self.odometry_config)
-        stamps = np.asarray(stamps)
-        if not wanted:
-            return forward, stamps, sizes, ""
-        if not starts_from_rest(forward, stamps):  # nothing for KISS-ICP to fall behind at
-            progress("backward", len(forward))
-            return forward, stamps, sizes, ""
-        if beside is not None:
-            backward = beside.poses()
-            progress("backward", len(forward))
-        else:
-            backward = backward_poses(workdir, len(forward), self.odometry_config,
-                                      lambda done: progress("backward", done))
-        poses, followed = farther_pass(forward, backward, self.config.odometry_margin,
-                                       self.config.odometry_margin_share,
-                                       prefer=ODOMETRY_PASSES[self.config.odometry_prefer])
-        return poses, stamps, sizes, followed
 
     def _helpers(self, n: int) -> tuple[PairRegistration, OnlineCue | None]:
         """The scan pairs' registration and the online cue (None without one) for a drive of ``n`` scans: each in a
