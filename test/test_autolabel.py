@@ -23,6 +23,7 @@ from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, box_shift, 
 from ros2_mos.offline.drives import FolderDrive, _scan
 from ros2_mos.offline.objects import (
     ObjectConfig,
+    ScanObjects,
     VehicleReturns,
     attach_below,
     attach_over,
@@ -30,6 +31,7 @@ from ros2_mos.offline.objects import (
     blind_floor,
     find_objects,
     local_ground,
+    moving_clusters,
     on_vehicle,
     split_long_clusters,
     voxel_clusters,
@@ -395,6 +397,59 @@ def test_in_the_blind_spot_the_ground_is_the_plane_fitted_beyond_it():
     without = find_objects(points, dataclasses.replace(config, blind_floor=False), sensor=sensor)
     assert (with_plane.point_object[6000:] >= 0).mean() > 0.9 and (with_plane.point_object[:6000] < 0).mean() > 0.99
     assert (without.point_object[6000:] >= 0).mean() < 0.5
+
+
+def test_the_online_model_s_moving_points_on_no_object_and_apart_from_objects_make_objects_unless_on_the_road():
+    # A sensor of 64 rows 0.47 degrees apart, 1.73 m over a flat road (the road a grid of returns, static).
+    sensor = SensorConfig("column64", 64, 1024, 15.0, -15.0, 0.0, 100.0)
+    y = np.linspace(-0.8, 0.8, 11)
+
+    def grid(x0: float, y0: float) -> np.ndarray:  # the road around (x0, y0), 0.5 m apart, between its rings
+        gx, gy = np.meshgrid(np.arange(x0 - 2.25, x0 + 2.5, 0.5), np.arange(y0 - 2.25, y0 + 2.5, 0.5))
+        return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, -1.73)])
+
+    parts = {
+        "object": np.column_stack([np.full(20, 10.0), np.linspace(-1, 1, 20), np.linspace(-1.2, -0.3, 20)]),
+        "far car ring": np.column_stack([np.full(11, 35.0), y, np.full(11, -1.33)]),  # 0.4 m over the road
+        "road around it": grid(35.0, 0.0),
+        "road ring": np.column_stack([np.full(11, 15.0), y + 6.0, np.full(11, -1.73)]),  # a piece of the road
+        "road around that": grid(15.0, 6.0),
+        "beside the object": np.column_stack([np.full(8, 11.5), np.linspace(-0.5, 0.5, 8), np.full(8, -0.8)]),
+        "too few": np.column_stack([np.full(5, 50.0), np.linspace(9.8, 10.2, 5), np.full(5, -1.0)]),
+        "static": np.column_stack([np.full(10, 40.0), np.linspace(-10.5, -9.5, 10), np.full(10, -1.0)]),
+    }
+    points = np.vstack(list(parts.values())).astype(np.float32)
+    at = np.cumsum([0] + [len(p) for p in parts.values()])
+    part = {name: slice(at[i], at[i + 1]) for i, name in enumerate(parts)}
+    rows = pixel_index(points, sensor).v
+    assert not np.isin(rows[part["road around it"]], rows[part["far car ring"]]).all()  # other rings around
+    moving = np.zeros(len(points), bool)
+    for name in ("far car ring", "road ring", "beside the object", "too few"):
+        moving[part[name]] = True
+    point_object = np.full(len(points), -1, np.int32)
+    point_object[part["object"]] = 0
+    n = len(points)
+    found = ScanObjects(point_object, np.array([20]), np.zeros(n, bool), np.zeros(n, np.float32), np.zeros(n, bool))
+
+    out = moving_clusters(points, found, moving, ObjectConfig(), lift=0.15, apart=2.0, sensor=sensor)
+    assert out.n_objects == 2 and out.counts.tolist() == [20, 11]
+    assert (out.point_object[part["far car ring"]] == 1).all()  # an object of its own, to be tracked
+    for name in ("road around it", "road ring", "road around that", "beside the object", "too few", "static"):
+        assert (out.point_object[part[name]] == -1).all(), name
+    assert (out.point_object[part["object"]] == 0).all() and found.point_object[part["far car ring"]].max() == -1
+    # The road ring's neighbours in other rings lie at its height: with them taken away it stands alone, an object
+    alone = np.ones(n, bool)
+    alone[part["road around that"]] = False
+    m = int(alone.sum())
+    kept = ScanObjects(point_object[alone], np.array([20]), np.zeros(m, bool), np.zeros(m, np.float32),
+                       np.zeros(m, bool))
+    lonely = moving_clusters(points[alone], kept, moving[alone], ObjectConfig(), lift=0.15, apart=2.0, sensor=sensor)
+    assert lonely.n_objects == 3
+    # 0.4 m over the road around it: not with a lift of 0.5 m; beside the object: with no distance asked for
+    assert moving_clusters(points, found, moving, ObjectConfig(), lift=0.5, apart=2.0, sensor=sensor).n_objects == 1
+    near = moving_clusters(points, found, moving, ObjectConfig(), lift=0.15, apart=0.0, sensor=sensor)
+    assert near.n_objects == 3 and (near.point_object[part["beside the object"]] >= 1).all()
+    assert moving_clusters(points, found, np.zeros(n, bool), ObjectConfig(), 0.15, 2.0, sensor) is found
 
 
 def test_points_on_no_object_that_the_online_model_labels_moving_take_the_nearest_object_s_label_within_reach():

@@ -27,7 +27,7 @@ import numpy as np
 from ros2_mos.core import kernels
 from ros2_mos.core.config import SensorConfig
 from ros2_mos.core.errors import ConfigError
-from ros2_mos.core.projection import closest_point_image
+from ros2_mos.core.projection import closest_point_image, pixel_index_columns
 from ros2_mos.core.segments import _union_find
 
 
@@ -454,6 +454,73 @@ def find_objects(points: np.ndarray, config: ObjectConfig = ObjectConfig(),
     structure = np.zeros(n, bool)
     structure[candidate] = too_large[cluster]
     return ScanObjects(point_object, counts[good], attached, height, structure)
+
+
+class _StripIndex:
+    """Points (indices into ``points``) sorted by x, for the ones within an axis-aligned box seen from above."""
+
+    def __init__(self, points: np.ndarray, which: np.ndarray) -> None:
+        order = np.argsort(points[which, 0], kind="stable")
+        self._which = which[order]
+        self._x = points[self._which, 0]
+        self._y = points[self._which, 1]
+
+    def within(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        a, b = np.searchsorted(self._x, lo[0]), np.searchsorted(self._x, hi[0], side="right")
+        y = self._y[a:b]
+        return self._which[a:b][(y >= lo[1]) & (y <= hi[1])]
+
+
+def moving_clusters(points: np.ndarray, found: ScanObjects, moving: np.ndarray, config: ObjectConfig,
+                    lift: float, apart: float, sensor: SensorConfig | None) -> ScanObjects:
+    """``found`` with the clusters (``config.voxel``) of points on no object that the online model labelled
+    ``moving`` as objects of their own, numbered after ``found``'s: those of ``config.min_points`` or more, none of
+    whose points lies within ``apart`` m of an object's, seen from above (0: wherever), and that stand more than
+    ``lift`` m (their median height) over the lowest return of the scan's other rings within ``ground_cell *
+    (ground_radius + 0.5)`` m of them, or have none around (with ``sensor``, whose rows are the rings; without it,
+    none is dropped for this). Not on a structure (a wall), not within ``config.ego_radius`` of the sensor nor
+    beyond ``config.max_range``. A sparse sensor's one or two rings on a car 30 m away have no other ring near them;
+    a piece of the road ring that the model labelled moving beside a car lies among the road's other rings."""
+    horizontal = np.hypot(points[:, 0], points[:, 1])
+    loose = np.flatnonzero((found.point_object < 0) & moving & ~found.structure
+                           & (horizontal > config.ego_radius) & (horizontal < config.max_range))
+    if len(loose) < config.min_points:
+        return found
+    cluster = voxel_clusters(points[loose], config.voxel)
+    counts = np.bincount(cluster)
+    keep = counts >= config.min_points
+    if not keep.any():
+        return found
+    members = np.split(loose[np.argsort(cluster, kind="stable")], np.cumsum(counts)[:-1])
+    on_object = np.flatnonzero(found.point_object >= 0)
+    objects_by_x = _StripIndex(points, on_object)
+    others = np.ones(len(points), bool)
+    others[loose] = False
+    others_by_x = _StripIndex(points, np.flatnonzero(others))
+    rows = pixel_index_columns(*(np.ascontiguousarray(points[:, i], np.float32) for i in range(3)), sensor).v \
+        if sensor is not None else None
+    reach = config.ground_cell * (config.ground_radius + 0.5)
+    for c in np.flatnonzero(keep):
+        own = members[c]
+        lo, hi = points[own, :2].min(axis=0), points[own, :2].max(axis=0)
+        if apart > 0:  # a cluster beside an object is left to it (``AutolabelConfig.cue_attach``)
+            near = objects_by_x.within(lo - apart, hi + apart)
+            if len(near):
+                d = points[own, None, :2] - points[None, near, :2]
+                if (np.einsum("ijk,ijk->ij", d, d) <= apart * apart).any():
+                    keep[c] = False
+                    continue
+        if rows is not None:  # on the ground that the scan's other rings around it lie on: the road
+            around = others_by_x.within(lo - reach, hi + reach)
+            around = around[~np.isin(rows[around], rows[own])]
+            if len(around) and np.median(points[own, 2]) - points[around, 2].min() <= lift:
+                keep[c] = False
+    new_id = np.full(len(counts), -1, np.int32)
+    new_id[keep] = found.n_objects + np.arange(int(keep.sum()), dtype=np.int32)
+    point_object = found.point_object.copy()
+    point_object[loose] = new_id[cluster]
+    return ScanObjects(point_object, np.concatenate([found.counts, counts[keep]]), found.attached,
+                       found.height_above_ground, found.structure)
 
 
 def on_ground_ring(points: np.ndarray, joined: np.ndarray, point_object: np.ndarray, own: np.ndarray,
