@@ -450,6 +450,9 @@ def test_the_online_model_s_moving_points_on_no_object_and_apart_from_objects_ma
     near = moving_clusters(points, found, moving, ObjectConfig(), lift=0.15, apart=0.0, sensor=sensor)
     assert near.n_objects == 3 and (near.point_object[part["beside the object"]] >= 1).all()
     assert moving_clusters(points, found, np.zeros(n, bool), ObjectConfig(), 0.15, 2.0, sensor) is found
+    # Only where the sensor's rows lie far enough apart: 0.47 degrees, 0.25 m at 30.6 m, 0.5 m at 61 m
+    assert moving_clusters(points, found, moving, ObjectConfig(), 0.15, 2.0, sensor, spacing=0.25).n_objects == 2
+    assert moving_clusters(points, found, moving, ObjectConfig(), 0.15, 2.0, sensor, spacing=0.5) is found
 
 
 def test_points_on_no_object_that_the_online_model_labels_moving_take_the_nearest_object_s_label_within_reach():

@@ -472,18 +472,23 @@ class _StripIndex:
 
 
 def moving_clusters(points: np.ndarray, found: ScanObjects, moving: np.ndarray, config: ObjectConfig,
-                    lift: float, apart: float, sensor: SensorConfig | None) -> ScanObjects:
+                    lift: float, apart: float, sensor: SensorConfig | None, spacing: float = 0.0) -> ScanObjects:
     """``found`` with the clusters (``config.voxel``) of points on no object that the online model labelled
     ``moving`` as objects of their own, numbered after ``found``'s: those of ``config.min_points`` or more, none of
     whose points lies within ``apart`` m of an object's, seen from above (0: wherever), and that stand more than
     ``lift`` m (their median height) over the lowest return of the scan's other rings within ``ground_cell *
     (ground_radius + 0.5)`` m of them, or have none around (with ``sensor``, whose rows are the rings; without it,
     none is dropped for this). Not on a structure (a wall), not within ``config.ego_radius`` of the sensor nor
-    beyond ``config.max_range``. A sparse sensor's one or two rings on a car 30 m away have no other ring near them;
-    a piece of the road ring that the model labelled moving beside a car lies among the road's other rings."""
+    beyond ``config.max_range``; with ``sensor``, not nearer than where its rows lie ``spacing`` m apart (its field
+    of view over its rows; 0: anywhere), for nearer, a car is seen by enough rings to be an object. A sparse sensor's
+    one or two rings on a car 30 m away have no other ring near them; a piece of the road ring that the model
+    labelled moving beside a car lies among the road's other rings."""
     horizontal = np.hypot(points[:, 0], points[:, 1])
+    nearest = config.ego_radius
+    if sensor is not None and spacing > 0:
+        nearest = max(nearest, spacing / np.tan(np.radians((sensor.fov_up_deg - sensor.fov_down_deg) / sensor.height)))
     loose = np.flatnonzero((found.point_object < 0) & moving & ~found.structure
-                           & (horizontal > config.ego_radius) & (horizontal < config.max_range))
+                           & (horizontal > nearest) & (horizontal < config.max_range))
     if len(loose) < config.min_points:
         return found
     cluster = voxel_clusters(points[loose], config.voxel)
