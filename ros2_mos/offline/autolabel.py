@@ -157,7 +157,7 @@ class AutolabelConfig:
     #: return of the scan's other rings around it (2.5 m): that is the road, into which the model's labels bleed
     #: near a mover (real r2: ring pieces 20-35 m away). A sparse sensor sees a car or a cyclist 20-50 m away as one
     #: or two rings, too few or too flat for an object, where no other ring reaches the road near it (VLP-16
-    #: validation 87.11 / 89.29 -> 87.49 / 89.66; benchmarks/autolabel.md, round 53)
+    #: validation 87.11 / 89.29 -> 87.46 / 89.62; benchmarks/autolabel.md, round 53)
     cue_objects: bool = True
     cue_objects_apart: float = 2.0
     cue_objects_lift: float = 0.15

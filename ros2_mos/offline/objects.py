@@ -471,6 +471,17 @@ class _StripIndex:
         return self._which[a:b][(y >= lo[1]) & (y <= hi[1])]
 
 
+def _any_within(a: np.ndarray, b: np.ndarray, reach: float) -> bool:
+    """Whether any of the (N, 2) points ``a`` lies within ``reach`` of any of ``b`` (pairs compared in bounded
+    chunks)."""
+    step = max(1, NEAREST_PAIRS // max(len(b), 1))
+    for start in range(0, len(a) if len(b) else 0, step):
+        d = a[start: start + step, None] - b[None]
+        if (np.einsum("ijk,ijk->ij", d, d) <= reach * reach).any():
+            return True
+    return False
+
+
 def moving_clusters(points: np.ndarray, found: ScanObjects, moving: np.ndarray, config: ObjectConfig,
                     lift: float, apart: float, sensor: SensorConfig | None, spacing: float = 0.0) -> ScanObjects:
     """``found`` with the clusters (``config.voxel``) of points on no object that the online model labelled
@@ -509,12 +520,9 @@ def moving_clusters(points: np.ndarray, found: ScanObjects, moving: np.ndarray, 
         own = members[c]
         lo, hi = points[own, :2].min(axis=0), points[own, :2].max(axis=0)
         if apart > 0:  # a cluster beside an object is left to it (``AutolabelConfig.cue_attach``)
-            near = objects_by_x.within(lo - apart, hi + apart)
-            if len(near):
-                d = points[own, None, :2] - points[None, near, :2]
-                if (np.einsum("ijk,ijk->ij", d, d) <= apart * apart).any():
-                    keep[c] = False
-                    continue
+            if _any_within(points[own, :2], points[objects_by_x.within(lo - apart, hi + apart), :2], apart):
+                keep[c] = False
+                continue
         if rows is not None:  # on the ground that the scan's other rings around it lie on: the road
             around = others_by_x.within(lo - reach, hi + reach)
             around = around[~np.isin(rows[around], rows[own])]
