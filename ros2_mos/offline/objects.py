@@ -497,7 +497,7 @@ def moving_clusters(points: np.ndarray, found: ScanObjects, moving: np.ndarray, 
     horizontal = np.hypot(points[:, 0], points[:, 1])
     nearest = config.ego_radius
     if sensor is not None and spacing > 0:
-        nearest = max(nearest, spacing / np.tan(np.radians((sensor.fov_up_deg - sensor.fov_down_deg) / sensor.height)))
+        nearest = max(nearest, spacing / np.tan(sensor.fov / sensor.height))  # as attach_over spaces its rows
     loose = np.flatnonzero((found.point_object < 0) & moving & ~found.structure
                            & (horizontal > nearest) & (horizontal < config.max_range))
     if len(loose) < config.min_points:
