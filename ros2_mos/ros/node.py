@@ -20,7 +20,7 @@ import time
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -337,11 +337,16 @@ def main(args: list[str] | None = None) -> None:
         rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {first}")
         sys.exit(1)
     node: MosNode | None = None
+    executor: SingleThreadedExecutor | None = None
     code = 0
     try:
+        # The executor is built before the node says it is ready: a SIGINT that lands while rclpy.spin() would build
+        # it leaves a half-made executor whose __del__ prints a traceback ('_sigint_gc') on the way out.
+        executor = SingleThreadedExecutor()
         node = MosNode()
         node.get_logger().info(transport)
-        rclpy.spin(node)
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigError, ModelError) as exc:
@@ -356,6 +361,8 @@ def main(args: list[str] | None = None) -> None:
         if rclpy.ok():
             raise
     finally:
+        if executor is not None:
+            executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -403,10 +403,11 @@ def test_a_sigint_while_spin_sets_up_is_a_normal_stop(tmp_path, tiny_model_path)
         "import rclpy\n"
         "from rclpy._rclpy_pybind11 import RCLError\n"
         "from ros2_mos.ros import node\n"
-        "def spin(n):\n"
+        "from rclpy.executors import SingleThreadedExecutor\n"
+        "def spin(executor):\n"
         "    rclpy.shutdown()\n"
         "    raise RCLError('failed to initialize wait set: the given context is not valid')\n"
-        "rclpy.spin = spin\n"
+        "SingleThreadedExecutor.spin = spin\n"
         f"node.main(['mos_node', '--ros-args', '--params-file', {str(params)!r}])\n"
     )
     out = subprocess.run([sys.executable, "-c", script], env=_env(DOMAIN + 9), capture_output=True, text=True,
