@@ -45,7 +45,8 @@ from autolabel import SEED_SETS, config_with, preset_means  # noqa: E402  (seed 
 
 #: The labeller's settings that only :meth:`AutoLabeler.decide` reads (where movers move under each convention).
 DECISION_SETTINGS = ("support_margin", "ever_from_motion", "shadow_edges", "instant_seen_through", "instant_speed",
-                     "instant_span", "instant_motion", "instant_context", "instant_cue_reshape", "instant_cue_centroid")
+                     "instant_span", "instant_motion", "instant_context", "instant_cue_reshape", "instant_cue_centroid",
+                     "instant_cue_motion")
 #: The code that builds the tracks: the cache is kept per hash of it.
 TRACKING_CODE = ("core", "offline", "io")
 

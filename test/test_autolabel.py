@@ -2181,3 +2181,35 @@ def test_find_objects_finds_the_same_objects_on_the_compiled_kernels_and_the_num
         assert compiled.n_objects == reference.n_objects > 3
         attached += int(compiled.attached.sum())
     assert attached > 100
+
+
+def test_a_mover_on_the_online_model_s_word_moves_now_only_where_its_box_or_centroid_travels():
+    from ros2_mos.core.config import sensor_preset
+    from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, AutolabelResult
+    from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, Track, Tracker
+
+    def obs(scan: int, x: float, online: float) -> Observation:
+        lo, hi = np.array([x, 2.0, 0.0]), np.array([x + 4.5, 3.8, 1.5])
+        return Observation(scan, 0, (lo + hi) / 2, 40, lo, hi, 0.0, 0.0, online)
+
+    # A car 50 m away, never seen through, waits at x 50 (scans 0-9), then drives on at 0.25 m a scan (scans 10-29);
+    # the model labels all of it moving. By hand, box and centroid over +-5 observations (instant_span, 0.1 s a
+    # scan): scan 5 spans x 50 -> 50.25 in 1 s (0.25 m/s < instant_speed 0.4), scan 6 50 -> 50.5 (0.5 m/s), scan
+    # 29 (the last) 53.75 -> 55 in 0.5 s: moving now from scan 6 on, not while it waits.
+    def car(online: float) -> Track:
+        return Track(0, [obs(k, 50.0 + 0.25 * max(k - 9, 0), online) for k in range(30)])
+
+    tracker = Tracker()
+    tracker.tracks = [car(0.9)]
+    result = AutolabelResult("waits then drives", 30, np.repeat(np.eye(4)[None], 30, 0), np.arange(30) * 0.1, tracker,
+                             {0: ONLINE_MODEL}, [40] * 30)
+    labeler = AutoLabeler(sensor_preset("vlp16"), AutolabelConfig())
+    assert labeler._moving_now(result) == {(k, 0) for k in range(6, 30)}
+    assert labeler._moving_ever(result) == {(k, 0) for k in range(30)}  # SemanticKITTI's: moving throughout
+    # where the model calls it static it is not moving now, however it travels
+    tracker.tracks = [Track(0, [obs(o.scan, o.lo[0], 0.9 if o.scan < 20 else 0.3) for o in car(0.9).observations])]
+    assert labeler._moving_now(result) == {(k, 0) for k in range(6, 20)}
+    # without the rule: the model's word alone, its waiting scans too
+    tracker.tracks = [car(0.9)]
+    word_alone = AutoLabeler(sensor_preset("vlp16"), AutolabelConfig(instant_cue_motion=False))
+    assert word_alone._moving_now(result) == {(k, 0) for k in range(30)}
