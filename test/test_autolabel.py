@@ -2183,7 +2183,7 @@ def test_find_objects_finds_the_same_objects_on_the_compiled_kernels_and_the_num
     assert attached > 100
 
 
-def test_a_mover_on_the_online_model_s_word_moves_now_only_where_its_box_or_centroid_travels():
+def test_a_mover_on_the_online_model_s_word_moves_now_only_where_the_rules_for_every_mover_say_so_too():
     from ros2_mos.core.config import sensor_preset
     from ros2_mos.offline.autolabel import AutolabelConfig, AutoLabeler, AutolabelResult
     from ros2_mos.offline.tracks import ONLINE_MODEL, Observation, Track, Tracker
@@ -2193,7 +2193,7 @@ def test_a_mover_on_the_online_model_s_word_moves_now_only_where_its_box_or_cent
         return Observation(scan, 0, (lo + hi) / 2, 40, lo, hi, 0.0, 0.0, online)
 
     # A car 50 m away, never seen through, waits at x 50 (scans 0-9), then drives on at 0.25 m a scan (scans 10-29);
-    # the model labels all of it moving. By hand, box and centroid over +-5 observations (instant_span, 0.1 s a
+    # the model labels all of it moving. By hand, its box over +-5 observations (instant_span, 0.1 s a
     # scan): scan 5 spans x 50 -> 50.25 in 1 s (0.25 m/s < instant_speed 0.4), scan 6 50 -> 50.5 (0.5 m/s), scan
     # 29 (the last) 53.75 -> 55 in 0.5 s: moving now from scan 6 on, not while it waits.
     def car(online: float) -> Track:
@@ -2213,3 +2213,15 @@ def test_a_mover_on_the_online_model_s_word_moves_now_only_where_its_box_or_cent
     tracker.tracks = [car(0.9)]
     word_alone = AutoLabeler(sensor_preset("vlp16"), AutolabelConfig(instant_cue_motion=False))
     assert word_alone._moving_now(result) == {(k, 0) for k in range(30)}
+    # A car that waits at x 48-52.5 as the sensor passes 3-5 m beside it: its box stands still, its centroid slides
+    # 0.2 m a scan (2 m/s) as the view of it changes, and the model calls it moving. Not moving now (the centroid
+    # rule that movers seen through have is not theirs) ...
+    passed = Track(0, [dataclasses.replace(obs(k, 48.0, 0.9), centroid=np.array([48.5 + 0.2 * k, 2.9, 0.75]),
+                                           distance=4.0) for k in range(30)])
+    tracker.tracks = [passed]
+    assert labeler._moving_now(result) == set()
+    assert word_alone._moving_now(result) == {(k, 0) for k in range(30)}
+    # ... but where a near scan saw through it (the rule for every mover), it is
+    tracker.tracks = [Track(0, [dataclasses.replace(o, near=0.5 if o.scan >= 25 else 0.0)
+                                for o in passed.observations])]
+    assert labeler._moving_now(result) == {(k, 0) for k in range(25, 30)}

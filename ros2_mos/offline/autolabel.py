@@ -186,11 +186,13 @@ class AutolabelConfig:
     #: moving. Without these conditions the VLP-16 model, which labels waiting cars moving, took the centroids a
     #: changing view slides (VLP-16 validation 86.44 -> 85.97 instant; benchmarks/autolabel.md, round 42).
     instant_cue_centroid: bool = True
-    #: An observation of a mover on the online model's word alone (no near or far scan saw through its place) moves
-    #: now where the model labels at least ``CUE_MOVING_NOW`` of it moving and its box or its centroid travelled
-    #: ``instant_speed`` over the observations ``instant_span`` before and after it; off: wherever the model says so.
-    #: The OS1-64 and VLP-32C models label a car that waits 50 m away moving: once such a car drove off, all its
-    #: waiting scans moved now (OS1-64 suite benchmark-9102 instant 84.5 -> 87.6; benchmarks/autolabel.md, round 54)
+    #: An observation of a mover on the online model's word alone (no scan saw through its place often enough)
+    #: moves now where the model labels at least ``CUE_MOVING_NOW`` of it moving and the instant rules for every
+    #: mover say so too (a near scan saw through it, its box travelled or changed shape), but not by its centroid
+    #: (``instant_cue_centroid``: the centroid of a car that waits slides as the sensor passes it, and the model
+    #: calls that car moving 3-5 m away); off: wherever the model says so. The OS1-64 and VLP-32C models label a car
+    #: that waits 50 m away moving: once such a car drove off, all its waiting scans moved now (OS1-64 suite
+    #: benchmark-9102 instant 84.5 -> 87.6; benchmarks/autolabel.md, round 54)
     instant_cue_motion: bool = True
     #: Each scan deskewed before objects and visibility (:mod:`~ros2_mos.core.deskew`: its points moved into the
     #: frame of the scan's pose by the motion between the poses around it, each at its firing time: from the cloud's
@@ -537,8 +539,8 @@ class AutoLabeler:
         through (the centroid of a car that waits long slides as the sensor passes it; the box rule needs no such
         guard, and with it a car that leaves at the very end of a drive, with no later scan to see through its old
         place, still counts). A track that waited, then left (:meth:`Tracker.handovers`) is judged by the same
-        rules: it stands while it waits and moves as it moves off. A mover on the online model's word alone moves now
-        where the model says so and its box or centroid travels (``instant_cue_motion``)."""
+        rules: it stands while it waits and moves as it moves off. A mover on the online model's word alone is judged
+        by the same rules, but for the centroid's, where the model labels it moving (``instant_cue_motion``)."""
         cfg = self.config
         out = set()
         for tid, evidence in result.movers.items():
@@ -558,13 +560,6 @@ class AutoLabeler:
 
             told = np.array([o.online >= CUE_MOVING_NOW for o in obs])
             centroid = np.array([o.centroid[:2] for o in obs])
-            if evidence == ONLINE_MODEL:  # no seen-through place to move from: the model's word where it travels
-                lo = np.array([o.lo[:2] for o in obs])
-                hi = np.array([o.hi[:2] for o in obs])
-                travelling = (rate(box_shift(lo[before], hi[before], lo[after], hi[after])) >= cfg.instant_speed) | \
-                    (rate(centroid[after] - centroid[before]) >= cfg.instant_speed)
-                out.update((o.scan, o.obj) for o, flag in zip(obs, told & travelling) if flag)
-                continue
             box = cfg.instant_motion == "box"
             if box:
                 lo = np.array([o.lo[:2] for o in obs])
@@ -584,10 +579,13 @@ class AutoLabeler:
                 labelled = np.zeros(m, bool)
             speed = rate(shift)
             near = np.array([o.near >= cfg.instant_seen_through for o in obs])
-            if box and cfg.instant_cue_centroid and model_right_where_it_stood(obs, speed, near):
+            word = evidence == ONLINE_MODEL  # a mover on the model's word alone: the rules above where it says so
+            if box and cfg.instant_cue_centroid and not word and model_right_where_it_stood(obs, speed, near):
                 beside = np.array([o.distance < CUE_VIEW_DISTANCE for o in obs])
                 labelled |= (rate(centroid[after] - centroid[before]) >= cfg.instant_speed) & told & ~beside
             moving = near | ((speed >= cfg.instant_speed) & context) | labelled
+            if word:
+                moving &= told
             out.update((o.scan, o.obj) for o, flag in zip(obs, moving) if flag)
         return out
 
