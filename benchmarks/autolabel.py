@@ -50,7 +50,7 @@ VALIDATION_SEEDS = {"easy": (9603, 9604, 9605, 9611, 9612, 9618, 9619, 9620),
                     "benchmark": (9601, 9606, 9607, 9608, 9613, 9614, 9615, 9621, 9622, 9623),
                     "traffic_jam": (9602, 9609, 9610, 9616, 9617, 9624, 9625, 9626)}
 #: Drives first simulated in round 21 to check the rules on drives they were not chosen on (two of them looked at
-#: since: narrow_street-9712, easy-9731).
+#: since: narrow_street-9712, easy-9731; for the VLP-16, round 54 looked at easy-9732 and chose a rule with all 11).
 FRESH_SEEDS = {"traffic_jam": (9701, 9702, 9703, 9704), "narrow_street": (9711, 9712, 9713),
                "benchmark": (9721, 9722), "easy": (9731, 9732)}
 #: Drives for the last word on round 22's rules: scored once they were chosen; then narrow_street-9813 was looked
