@@ -471,17 +471,6 @@ class _StripIndex:
         return self._which[a:b][(y >= lo[1]) & (y <= hi[1])]
 
 
-def _any_within(a: np.ndarray, b: np.ndarray, reach: float) -> bool:
-    """Whether any of the (N, 2) points ``a`` lies within ``reach`` of any of ``b`` (pairs compared in bounded
-    chunks)."""
-    step = max(1, NEAREST_PAIRS // max(len(b), 1))
-    for start in range(0, len(a) if len(b) else 0, step):
-        d = a[start: start + step, None] - b[None]
-        if (np.einsum("ijk,ijk->ij", d, d) <= reach * reach).any():
-            return True
-    return False
-
-
 def moving_clusters(points: np.ndarray, found: ScanObjects, moving: np.ndarray, config: ObjectConfig,
                     lift: float, apart: float, sensor: SensorConfig | None, spacing: float = 0.0) -> ScanObjects:
     """``found`` with the clusters (``config.voxel``) of points on no object that the online model labelled
@@ -520,7 +509,8 @@ def moving_clusters(points: np.ndarray, found: ScanObjects, moving: np.ndarray, 
         own = members[c]
         lo, hi = points[own, :2].min(axis=0), points[own, :2].max(axis=0)
         if apart > 0:  # a cluster beside an object is left to it (``AutolabelConfig.cue_attach``)
-            if _any_within(points[own, :2], points[objects_by_x.within(lo - apart, hi + apart), :2], apart):
+            beside = points[objects_by_x.within(lo - apart, hi + apart), :2]
+            if any((d2 <= apart * apart).any() for _, d2 in _square_distances(points[own, :2], beside)):
                 keep[c] = False
                 continue
         if rows is not None:  # on the ground that the scan's other rings around it lie on: the road
@@ -723,6 +713,15 @@ def _cells_around(keys: np.ndarray) -> np.ndarray:
 NEAREST_PAIRS = 1 << 21
 
 
+def _square_distances(a: np.ndarray, b: np.ndarray) -> Iterator[tuple[int, np.ndarray]]:
+    """The squared distances from the (N, 2) points ``a`` to the (M, 2) points ``b``, in chunks of rows of at most
+    :data:`NEAREST_PAIRS` pairs: (the chunk's first row, its (rows, M) distances)."""
+    step = max(1, NEAREST_PAIRS // max(len(b), 1))
+    for start in range(0, len(a), step):
+        d = a[start: start + step, None] - b[None]
+        yield start, np.einsum("ijk,ijk->ij", d, d)
+
+
 def nearest_object_within(points: np.ndarray, which: np.ndarray, point_object: np.ndarray, reach: float) -> np.ndarray:
     """Per point ``which`` (indices), the id in ``point_object`` of the object with the nearest point within ``reach``
     metres of it seen from above (exact distances), -1 where none. Only the objects' points in and beside the
@@ -737,14 +736,10 @@ def nearest_object_within(points: np.ndarray, which: np.ndarray, point_object: n
     on_object = on_object[np.isin(_top_cells(points, on_object, reach), around)]
     if len(on_object) == 0:
         return ids
-    xy = points[on_object, :2]
-    step = max(1, NEAREST_PAIRS // len(on_object))
-    for start in range(0, len(which), step):
-        d = points[which[start: start + step], None, :2] - xy[None]
-        d2 = np.einsum("ijk,ijk->ij", d, d)
+    for start, d2 in _square_distances(points[which, :2], points[on_object, :2]):
         nearest = np.argmin(d2, axis=1)
         hit = d2[np.arange(len(nearest)), nearest] <= reach * reach
-        ids[start: start + step][hit] = point_object[on_object[nearest[hit]]]
+        ids[start: start + len(nearest)][hit] = point_object[on_object[nearest[hit]]]
     return ids
 
 
