@@ -497,24 +497,25 @@ def moving_clusters(points: np.ndarray, found: ScanObjects, moving: np.ndarray, 
     if not keep.any():
         return found
     members = np.split(loose[np.argsort(cluster, kind="stable")], np.cumsum(counts)[:-1])
-    on_object = np.flatnonzero(found.point_object >= 0)
-    objects_by_x = _StripIndex(points, on_object)
-    others = np.ones(len(points), bool)
-    others[loose] = False
-    others_by_x = _StripIndex(points, np.flatnonzero(others))
-    rows = pixel_index_columns(*(np.ascontiguousarray(points[:, i], np.float32) for i in range(3)), sensor).v \
-        if sensor is not None else None
-    reach = config.ground_cell * (config.ground_radius + 0.5)
-    for c in np.flatnonzero(keep):
-        own = members[c]
-        lo, hi = points[own, :2].min(axis=0), points[own, :2].max(axis=0)
-        if apart > 0:  # a cluster beside an object is left to it (``AutolabelConfig.cue_attach``)
-            beside = points[objects_by_x.within(lo - apart, hi + apart), :2]
-            if any((d2 <= apart * apart).any() for _, d2 in _square_distances(points[own, :2], beside)):
-                keep[c] = False
-                continue
-        if rows is not None:  # on the ground that the scan's other rings around it lie on: the road
-            around = others_by_x.within(lo - reach, hi + reach)
+    lo = np.full((len(counts), 2), np.inf, points.dtype)  # each cluster's box seen from above
+    hi = np.full((len(counts), 2), -np.inf, points.dtype)
+    np.minimum.at(lo, cluster, points[loose, :2])
+    np.maximum.at(hi, cluster, points[loose, :2])
+    if apart > 0:  # a cluster beside an object is left to it (``AutolabelConfig.cue_attach``)
+        objects_by_x = _StripIndex(points, np.flatnonzero(found.point_object >= 0))
+        for c in np.flatnonzero(keep):
+            beside = points[objects_by_x.within(lo[c] - apart, hi[c] + apart), :2]
+            keep[c] = not any((d2 <= apart * apart).any()
+                              for _, d2 in _square_distances(points[members[c], :2], beside))
+    if sensor is not None and keep.any():  # on the ground that the scan's other rings around it lie on: the road
+        others = np.ones(len(points), bool)
+        others[loose] = False
+        others_by_x = _StripIndex(points, np.flatnonzero(others))
+        rows = pixel_index_columns(*(np.ascontiguousarray(points[:, i], np.float32) for i in range(3)), sensor).v
+        reach = config.ground_cell * (config.ground_radius + 0.5)
+        for c in np.flatnonzero(keep):
+            own = members[c]
+            around = others_by_x.within(lo[c] - reach, hi[c] + reach)
             around = around[~np.isin(rows[around], rows[own])]
             if len(around) and np.median(points[own, 2]) - points[around, 2].min() <= lift:
                 keep[c] = False
