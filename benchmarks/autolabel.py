@@ -86,6 +86,16 @@ SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_
              "unseen6": UNSEEN6_SEEDS, "unseen7": UNSEEN7_SEEDS, "unseen8": UNSEEN8_SEEDS}
 
 
+def seeds_of(seed_set: str, presets: list[str] | None) -> dict[str, tuple[int, ...]]:
+    """The seeds of ``seed_set``, only those of ``presets`` where given; raises ValueError for a preset it lacks."""
+    seeds = SEED_SETS[seed_set]
+    missing = sorted(set(presets or ()) - set(seeds))
+    if missing:
+        raise ValueError(f"--presets: the {seed_set} drives have no {', '.join(missing)} (they have "
+                         f"{', '.join(seeds)})")
+    return {preset: s for preset, s in seeds.items() if presets is None or preset in presets}
+
+
 def score_drive(folder: Path, sensor: str, online: bool,
                 config: AutolabelConfig = AutolabelConfig()) -> dict[str, float]:
     seq = SemanticKittiSequence(folder)
@@ -163,6 +173,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=Path("data/autolabel"))
     parser.add_argument("--sensors", nargs="+", default=["hdl64"])
     parser.add_argument("--seeds", choices=tuple(SEED_SETS), default="suite")
+    parser.add_argument("--presets", nargs="+", metavar="PRESET",
+                        help="only the seed set's drives of these presets (default: all of them)")
     parser.add_argument("--scans", type=int, default=100)
     parser.add_argument("--no-online", action="store_true", help="skip the online model's columns")
     parser.add_argument("--intra-sweep-motion", action="store_true",
@@ -174,7 +186,10 @@ def main() -> None:
         config, changes = config_with(args.set)
     except (ValueError, TypeError) as error:  # TypeError, ConfigError (a ValueError): a value the setting refuses
         parser.error(f"--set {error}")
-    seeds = SEED_SETS[args.seeds]
+    try:
+        seeds = seeds_of(args.seeds, args.presets)
+    except ValueError as error:
+        parser.error(str(error))
     print(f"autolabel benchmark, {time.strftime('%Y-%m-%d')}: {args.seeds} drives, {args.scans} scans, "
           f"KISS-ICP poses, settings {changes or 'default'}{', skewed sweeps' if args.intra_sweep_motion else ''}\n")
     cols = ["auto semantickitti", "online semantickitti", "auto instant", "online instant", "precision", "recall",

@@ -41,7 +41,7 @@ from ros2_mos.scoring.suite import ensure_sim_sequences
 from ros2_mos.sim.writer import SIMULATOR_FILE
 
 sys.path.insert(0, str(Path(__file__).parent))
-from autolabel import SEED_SETS, config_with, preset_means  # noqa: E402  (seed sets, --set, means: defined once)
+from autolabel import SEED_SETS, config_with, preset_means, seeds_of  # noqa: E402  (seed sets, --set, means: defined once)
 
 #: The labeller's settings that only :meth:`AutoLabeler.decide` reads (where movers move under each convention).
 DECISION_SETTINGS = ("support_margin", "ever_from_motion", "shadow_edges", "instant_seen_through", "instant_speed",
@@ -118,6 +118,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=Path("data/autolabel"))
     parser.add_argument("--sensors", nargs="+", default=["hdl64"])
     parser.add_argument("--seeds", choices=tuple(SEED_SETS), default="validation")
+    parser.add_argument("--presets", nargs="+", metavar="PRESET",
+                        help="only the seed set's drives of these presets (default: all of them)")
     parser.add_argument("--scans", type=int, default=100)
     parser.add_argument("--cache", type=Path, default=Path("data/autolabel_tracked"),
                         help="where each drive's tracks are kept (a folder per code version)")
@@ -128,6 +130,10 @@ def main() -> None:
         variants = {"default": AutolabelConfig(), **{text: parse_variant(text) for text in args.variant}}
     except (ValueError, TypeError) as error:
         parser.error(f"--variant: {error}")
+    try:
+        seeds = seeds_of(args.seeds, args.presets)
+    except ValueError as error:
+        parser.error(str(error))
     cache = args.cache / code_key()
     print(f"autolabel decision rules, {time.strftime('%Y-%m-%d')}: {args.seeds} drives, {args.scans} scans, tracks "
           f"kept in {cache}; semantickitti / instant moving IoU (movers)\n")
@@ -138,7 +144,7 @@ def main() -> None:
         labelers = {name: AutoLabeler(sensor_preset(sensor), config) for name, config in variants.items()}
         rows: dict[str, list[list[float]]] = {name: [] for name in variants}
         presets = []
-        for preset, name, folder in ensure_sim_sequences(root, args.scans, SEED_SETS[args.seeds], print, sensor):
+        for preset, name, folder in ensure_sim_sequences(root, args.scans, seeds, print, sensor):
             seq = SemanticKittiSequence(folder)
             dirs = label_dirs(folder)
             truth = {c: [to_moving_classes(read_label(dirs[c] / f"{f.stem}.label")) for f in seq.scan_files]
