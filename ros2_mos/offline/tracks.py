@@ -63,10 +63,7 @@ class TrackConfig:
     #: benchmarks/autolabel.md, round 50)
     evidence_range: float = 60.0
     min_moving_observations: int = 2
-    #: ... and at least this share of the track's observations: a slow car passed by a fast sensor is seen through
-    #: in few of them (a VLP-16 passing a car that drives 0.9 m/s on a narrow street: 5 of its 32 observations, its
-    #: seen-through boxes 0.9 m apart; benchmarks/autolabel.md, round 55),
-    moving_share: float = 0.15
+    moving_share: float = 0.2  # ... and at least this share of the track's observations,
     #: m: or fewer seen-through observations that lie this far apart (it waited long, then left) ...
     min_evidence_travel: float = 1.5
     evidence_travel: str = "box"  # ... measured by their boxes (box_shift) or centroids (:func:`evidence_travel`)
