@@ -946,7 +946,7 @@ def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_i
 
 
 def test_a_track_seen_through_as_it_left_is_a_mover():
-    from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_LEAVING, Observation, Track, TrackConfig, Tracker
+    from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_LEAVING, SEEN_THROUGH, Observation, Track, TrackConfig, Tracker
 
     def track(tid: int, far: list[float], steps: list[float]) -> Track:
         """A car 4.4 m long behind the waiting sensor, ``steps[k]`` m on along x after the observation before; ``far``:
@@ -974,11 +974,14 @@ def test_a_track_seen_through_as_it_left_is_a_mover():
     pole = track(5, seen, waited + leaving)
     for o in pole.observations:
         o.lo[:2], o.hi[:2] = o.centroid[:2] - 0.1, o.centroid[:2] + 0.1
-    # the same car made of parts cut off for being seen through (2 x 41 > 81): it must travel min_evidence_travel
+    # the same car made of parts cut off for being seen through (2 x 41 > 81): no leaving car (seen_leaving takes
+    # none such); a mover where its seen-through boxes travelled cut_travel (0.85 m >= 0.5 m by default)
     parts = track(6, seen, waited + leaving)
     for o in parts.observations[:41]:
         o.cut = True
     tracker.tracks += [pole, parts]
+    assert tracker.movers() == {6: SEEN_THROUGH}
+    tracker.config = config = dataclasses.replace(config, cut_travel=0.9)
     assert tracker.movers() == {}
     assert [o.scan for o in tracker._final_run(tracker.tracks[0], seen_through=True)] == list(range(73, 81))
     # by hand: track 0's last 8 boxes, both edges 0.85 m along x (0.05 + 0.05 + 0.1 + 0.1 + 0.15 + 0.2 + 0.2) >= 0.25;
@@ -1146,6 +1149,12 @@ def test_parts_cut_off_for_being_seen_through_make_a_mover_only_if_they_travel()
     pole = Track(0, [part(25 + 3 * i, -3.1) for i in range(4)])  # a thin pole cut off a hedge, seen round its edges
     cyclist = Track(1, [part(25 + i, -3.1 + 0.5 * i) for i in range(4)])  # the cyclist cut off a parked car
     assert not tracker.seen_moving(pole) and tracker.seen_moving(cyclist)
+    # cut parts need cut_travel (0.5 m), not min_evidence_travel: a cyclist seen 0.2 m on a scan for 4 scans (0.6 m)
+    slower = Track(3, [part(25 + i, -3.1 + 0.2 * i) for i in range(4)])
+    assert tracker.seen_moving(slower)
+    assert not Tracker(TrackConfig(cut_travel=0.7)).seen_moving(slower)
+    assert not Tracker(TrackConfig(cut_travel=0.5)).seen_moving(Track(4, [part(25 + i, -3.1 + 0.1 * i)
+                                                                          for i in range(4)]))  # 0.3 m: no
     assert tracker.seen_moving(Track(2, [part(25 + 3 * i, -3.1, cut=False) for i in range(4)]))  # uncut: as before
 
 

@@ -67,6 +67,12 @@ class TrackConfig:
     #: m: or fewer seen-through observations that lie this far apart (it waited long, then left) ...
     min_evidence_travel: float = 1.5
     evidence_travel: str = "box"  # ... measured by their boxes (box_shift) or centroids (:func:`evidence_travel`)
+    #: m: a track made mostly of parts cut off an object for being seen through (:class:`Observation`'s ``cut``) is a
+    #: mover only where its seen-through observations travelled this far: a thin pole cut off a hedge is seen through
+    #: round its edges and stays put, a cyclist cut off the parked car he passes travels on (VLP-16 narrow streets:
+    #: 1.0-1.3 m in 0.3-0.4 s; every such track of 0.5 m or more on the validation and narrow-street drives of the
+    #: VLP-16, VLP-32C and HDL-64E moved; benchmarks/autolabel.md, round 55)
+    cut_travel: float = 0.5
     #: ... but not where one step between observations of consecutive scans made most of that travel (this share of
     #: it or more, the other steps together less than the rest) with two observations or more on either side: the box
     #: stood, jumped within 0.1 s, and stood again, which no vehicle does. A ring on a parked car's roof slides along
@@ -190,7 +196,7 @@ class TrackConfig:
         from ros2_mos.offline.objects import check_numbers
 
         check_numbers(self, "autolabel tracks",
-                      zero_ok=("moving_share", "handover_scans", "handover_margin", "handover_min_area",
+                      zero_ok=("moving_share", "cut_travel", "handover_scans", "handover_margin", "handover_min_area",
                                "handover_travel", "cue_travel", "cue_veto_share", "cue_veto_near", "cue_min_distance",
                                "resume_scans", "resume_stood", "resume_travel", "jump_gap", "jump_margin",
                                "cue_end_travel", "cue_end_still", "leave_travel", "leave_min_length", "travel_jump"),
@@ -451,8 +457,8 @@ class Tracker:
             return False
         travel = evidence_travel(evidence, cfg.evidence_travel)
         travelled = travel >= cfg.min_evidence_travel and not self._one_jump(track, travel)
-        if self._mostly_cut(track):
-            return travelled  # parts cut off for being seen through (a pole beside a hedge): only if they travel
+        if self._mostly_cut(track):  # parts cut off for being seen through (a pole beside a hedge): only if they travel
+            return travel >= cfg.cut_travel and not self._one_jump(track, travel)
         if travelled:
             return True
         if cue and cfg.cue_veto and np.mean([o.online for o in track.observations]) <= cfg.cue_veto_share \
