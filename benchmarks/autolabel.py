@@ -12,6 +12,8 @@ beside the online model on the same drives.
     python benchmarks/autolabel.py --seeds unseen6        # round 26's check of round 26's handover and poses
     python benchmarks/autolabel.py --seeds unseen7        # round 31's check of rounds 27-31
     python benchmarks/autolabel.py --seeds unseen8        # round 32's check of rounds 31-32
+    python benchmarks/autolabel.py --data data/narrow16 --sensors vlp16 --seeds unseen7 --presets narrow_street
+        # one preset's drives of a set: round 55 chose a VLP-16 rule on the narrow streets of unseen to unseen7
     python benchmarks/autolabel.py --seeds validation --no-online --set instant_speed=0.6 --set instant_span=3
     python benchmarks/autolabel.py --seeds validation --no-online --set objects.attach_distance=0.4
     python benchmarks/autolabel.py --data data/skewed --intra-sweep-motion --no-online --set deskew=on
@@ -79,6 +81,8 @@ UNSEEN6_SEEDS = {"traffic_jam": (10201, 10202, 10203, 10204), "narrow_street": (
 UNSEEN7_SEEDS = {"traffic_jam": (10301, 10302, 10303, 10304), "narrow_street": (10311, 10312, 10313),
                  "benchmark": (10321, 10322), "easy": (10331, 10332)}
 #: Round 32's check of rounds 31-32 (first scored when round 32's rule was chosen on the other sets).
+#: (Round 55 simulated the narrow_street drives of ``unseen`` to ``unseen7`` for the VLP-16, 21 drives, and chose a
+#: rule with them: for the VLP-16's narrow streets those are development drives; ``unseen8``'s are not.)
 UNSEEN8_SEEDS = {"traffic_jam": (10401, 10402, 10403, 10404), "narrow_street": (10411, 10412, 10413),
                  "benchmark": (10421, 10422), "easy": (10431, 10432)}
 SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_SEEDS, "unseen": UNSEEN_SEEDS,
