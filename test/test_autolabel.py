@@ -946,7 +946,15 @@ def test_a_car_the_online_model_saw_pull_away_as_the_drive_ended_is_a_mover_on_i
 
 
 def test_a_track_seen_through_as_it_left_is_a_mover():
-    from ros2_mos.offline.tracks import ONLINE_MODEL, SEEN_LEAVING, SEEN_THROUGH, Observation, Track, TrackConfig, Tracker
+    from ros2_mos.offline.tracks import (
+        ONLINE_MODEL,
+        SEEN_LEAVING,
+        SEEN_THROUGH,
+        Observation,
+        Track,
+        TrackConfig,
+        Tracker,
+    )
 
     def track(tid: int, far: list[float], steps: list[float]) -> Track:
         """A car 4.4 m long behind the waiting sensor, ``steps[k]`` m on along x after the observation before; ``far``:
