@@ -1304,6 +1304,25 @@ def test_a_track_that_ends_where_a_mover_s_track_begins_is_that_mover_waiting():
 
 
 
+def test_a_car_queued_behind_the_sensor_hands_over_to_the_sliver_of_its_front_moving_off():
+    from ros2_mos.offline.tracks import SEEN_THROUGH, WAITED, Observation, Track, TrackConfig, Tracker
+
+    def obs(scan: int, x0: float, x1: float, far: float = 0.0) -> Observation:
+        lo, hi = np.array([x0, -1.1, -1.5]), np.array([x1, 0.8, -0.7])
+        return Observation(scan, 0, (lo + hi) / 2, 200, lo, hi, far, far)
+
+    # A car waits behind the sensor, its last box 2.8 x 1.9 m (5.32 m²); it moves off as the sliver of its front
+    # seen end-on, 0.5 x 1.9 m (0.95 m², the footprint's least side): 5.6 times larger, within handover_larger (7)
+    waited = Track(0, [obs(k, -8.9, -6.1) for k in range(62)])
+    mover = Track(1, [obs(62 + k, -6.5 + 0.25 * k, -6.1 + 0.25 * k, far=0.8) for k in range(30)])
+    tracker = Tracker(TrackConfig())
+    tracker.tracks = [waited, mover]
+    assert TrackConfig().handover_larger == 7.0
+    assert tracker.handovers({1: SEEN_THROUGH}) == {0: WAITED}
+    tracker.config = TrackConfig(handover_larger=5.0)  # round 54's bound
+    assert tracker.handovers({1: SEEN_THROUGH}) == {}
+
+
 def test_a_track_that_begins_where_a_mover_stood_hidden_is_that_mover_seen_again():
     from ros2_mos.offline.tracks import (
         ONLINE_MODEL,

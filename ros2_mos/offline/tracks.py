@@ -148,8 +148,9 @@ class TrackConfig:
     handover_margin: float = 0.3
     #: ... when its last box's footprint (or, where that is smaller, the stub of a car moving off, the track's
     #: median footprint) is at most this many times the mover's first box (a car that waited is larger than the
-    #: first glimpse of it moving off: 4.2-4.8 times on the simulated jams) ...
-    handover_larger: float = 5.0
+    #: first glimpse of it moving off: 4.2-4.8 times on the simulated jams; 5.6 for a car queued behind the sensor,
+    #: whose first glimpse is its front seen end-on, VLP-32C narrow_street-9913; 5 until round 55) ...
+    handover_larger: float = 7.0
     #: ... and at least this share of it (a pole, or a parked car that a passer-by walked past, is smaller) ...
     handover_smaller: float = 0.5
     #: ... and at most this many square metres: a car (larger clusters that a passer-by left, on sparse sensors
