@@ -448,9 +448,9 @@ class Tracker:
         """Enough of the track's observations were seen through: a share of them, or fewer that lie apart (a car
         that waited most of the drive and then left; a static object seen through now and then stays in place). A
         track made mostly of parts cut off an object for being seen through (:class:`Observation`'s ``cut``) must
-        travel: a thin pole beside a hedge is seen through around its edges, and cut off it. With ``cue`` (the
-        observations carry the online model's labels) and ``cue_veto``, one that did not travel must not be one the
-        model calls static."""
+        travel ``cut_travel``: a thin pole beside a hedge is seen through around its edges, and cut off it. With
+        ``cue`` (the observations carry the online model's labels) and ``cue_veto``, one that did not travel must not
+        be one the model calls static."""
         cfg = self.config
         seen = [self.seen_through(o) for o in track.observations]
         evidence = [o for o, s in zip(track.observations, seen) if s]
