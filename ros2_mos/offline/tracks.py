@@ -457,9 +457,10 @@ class Tracker:
         if len(evidence) < cfg.min_moving_observations:
             return False
         travel = evidence_travel(evidence, cfg.evidence_travel)
-        travelled = travel >= cfg.min_evidence_travel and not self._one_jump(track, travel)
-        if self._mostly_cut(track):  # parts cut off for being seen through (a pole beside a hedge): only if they travel
-            return travel >= cfg.cut_travel and not self._one_jump(track, travel)
+        cut = self._mostly_cut(track)  # parts cut off for being seen through (a pole beside a hedge): if they travel
+        travelled = travel >= (cfg.cut_travel if cut else cfg.min_evidence_travel) and not self._one_jump(track, travel)
+        if cut:
+            return travelled
         if travelled:
             return True
         if cue and cfg.cue_veto and np.mean([o.online for o in track.observations]) <= cfg.cue_veto_share \
