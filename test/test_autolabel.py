@@ -756,11 +756,15 @@ def test_a_track_is_cut_where_it_jumps_from_a_pedestrian_onto_the_parked_car_he_
     assert [len(t.observations) for t in tracker.tracks] == [11, 27]
     assert tracker.track_of[(13, 0)] == tracker.track_of[(39, 0)] == 1 and tracker.track_of[(10, 0)] == 0
     assert tracker.movers() == {0: "seen through"}  # the car is no mover, and so not moving in any scan
-    # Not cut: the same jump without a missed scan (the car's glimpse at scan 11), or onto a box that overlaps the last
-    # one (grown by jump_margin: 0.35 m instead of 0.2), or with jump_gap 0
-    assert follow(walker + [obs(k, c.lo[:2], c.hi[:2], 0.0) for k, c in zip(range(11, 40), car)]).cut_jumps() == 0
-    assert follow(walker + car, TrackConfig(jump_margin=0.35)).cut_jumps() == 0
-    assert follow(walker + car, TrackConfig(jump_gap=0)).cut_jumps() == 0
+    # Not cut by the gap rule: the same jump without a missed scan (the car's glimpse at scan 11; the halt rule, tested
+    # below, off), or onto a box that overlaps the last one (grown by jump_margin: 0.35 m instead of 0.2), or with
+    # jump_gap 0
+    glimpse = [obs(k, c.lo[:2], c.hi[:2], 0.0) for k, c in zip(range(11, 40), car)]
+    assert follow(walker + glimpse, TrackConfig(jump_speed=0.0)).cut_jumps() == 0
+    assert follow(walker + car, TrackConfig(jump_margin=0.35, jump_speed=0.0)).cut_jumps() == 0
+    assert follow(walker + car, TrackConfig(jump_gap=0, jump_speed=0.0)).cut_jumps() == 0
+    # (the halt rule cuts each of them: he walked 3 m/s until scan 10, the car stood from scan 13 on, 2 times his size)
+    assert follow(walker + glimpse).cut_jumps() == 1 and follow(walker + car, TrackConfig(jump_gap=0)).cut_jumps() == 1
     # Not cut: a pedestrian who stops where he was hidden (his box overlaps his last one), or whose evidence goes on
     stops = walker + [obs(k, (-2.5, -2.0), (-2.0, -1.5), 0.0) for k in range(13, 40)]
     assert follow(stops).cut_jumps() == 0
@@ -788,6 +792,62 @@ def test_a_track_is_cut_where_it_jumps_from_a_pedestrian_onto_the_parked_car_he_
             TrackConfig(jump_gap=bad)
     with pytest.raises(ConfigError, match="jump_margin"):
         TrackConfig(jump_margin=float("inf"))
+
+
+def test_a_track_is_cut_where_a_cyclist_seen_through_halts_within_a_scan_onto_the_parked_car_he_rides_past():
+    from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
+
+    def obs(scan: int, lo: tuple[float, float], hi: tuple[float, float], far: float) -> Observation:
+        lo3, hi3 = np.array([*lo, 0.0]), np.array([*hi, 1.5])
+        return Observation(scan, 0, (lo3 + hi3) / 2, 100, lo3, hi3, far, far)
+
+    def follow(observations: list[Observation], config: TrackConfig = TrackConfig()) -> Tracker:
+        tracker = Tracker(config)
+        for k in sorted({o.scan for o in observations}):
+            tracker.add_scan(k, 0.1 * k, 0.1 * (k - 1) if k else None, [o for o in observations if o.scan == k])
+        return tracker
+
+    # VLP-32C unseen4 narrow_street-10013: a cyclist rides along y -1.9..-1.5 at 5.5 m/s, seen through (1.0 x 0.4 m;
+    # footprint 1.0 x 0.5, each side at least 0.5 m), and merges with the parked car he passes; from scan 20 the track
+    # follows the car, never seen through, as it comes into view: its box grows 0.5 m a scan along x and 0.2 m across,
+    # one edge at a time (it stands: 0 m/s by both edges). The cyclist's last three boxes moved 1.1 m in 0.2 s: 5.5
+    # m/s, the car's first three 0; the car's median footprint over its first five (1.0, 1.8, 2.8, 4.0, 5.4 m^2) is
+    # 2.8, 5.6 times the cyclist's 0.5.
+    rides = [obs(k, (32.0 + 0.55 * k, -1.9), (33.0 + 0.55 * k, -1.5), 0.9) for k in range(20)]
+    car = [obs(k, (44.5, max(-2.6 - 0.2 * (k - 20), -3.9)), (min(45.5 + 0.5 * (k - 20), 49.5), -1.6), 0.0)
+           for k in range(20, 40)]
+    tracker = follow(rides + car)
+    assert len(tracker.tracks) == 1  # no scan missed, the gate and the size ratio let it through
+    steady = np.stack([0.5 * np.arange(40.0), np.zeros(40)], axis=1)  # the sensor drives on at 5 m/s
+    assert tracker.cut_jumps(0.1 * np.arange(40), steady) == 1
+    assert [len(t.observations) for t in tracker.tracks] == [20, 20]
+    assert tracker.movers() == {0: "seen through"}  # the car is no mover
+    # Not cut where the poses say the sensor halted with it (5 m/s, then standing from scan 20: the odometry slipped)
+    slipped = steady.copy()
+    slipped[20:] = slipped[19]
+    assert follow(rides + car).cut_jumps(0.1 * np.arange(40), slipped) == 0
+    assert follow(rides + car, TrackConfig(jump_sensor=6.0)).cut_jumps(0.1 * np.arange(40), slipped) == 1
+    # Not cut: slower than jump_speed (5.5 < 6), standing faster than jump_still (the car's box carried 0.1 m a scan:
+    # 1.0 m/s), what stands under jump_area times what moved (2.8 < 6 x 0.5), or with jump_speed 0
+    assert follow(rides + car, TrackConfig(jump_speed=6.0)).cut_jumps() == 0
+    creeps = [obs(o.scan, tuple(o.lo[:2] + [0.1 * (o.scan - 20), 0.0]), tuple(o.hi[:2] + [0.1 * (o.scan - 20), 0.0]),
+                  0.0) for o in car]
+    assert follow(rides + creeps).cut_jumps() == 0
+    assert follow(rides + car, TrackConfig(jump_area=6.0)).cut_jumps() == 0
+    assert follow(rides + car, TrackConfig(jump_speed=0.0)).cut_jumps() == 0
+    # ... nor a cyclist who stops where he is (his own box stands: one size), though no scan sees through him then
+    stops = [obs(k, (43.0, -1.9), (44.0, -1.5), 0.0) for k in range(20, 40)]
+    assert follow(rides + stops).cut_jumps() == 0
+    # Not the other way round: a standing track that goes on as a cyclist riding off at 5.5 m/s is also what a mover
+    # merged with the static points around it makes as it drives out of them (real r1: an oncoming car's first 5
+    # scans, most of whose points were the car's)
+    backwards = [obs(39 - o.scan, tuple(o.lo[:2]), tuple(o.hi[:2]), o.far) for o in reversed(rides + car)]
+    tracker = follow(backwards)
+    assert len(tracker.tracks) == 1 and tracker.cut_jumps() == 0
+    for name, bad in (("jump_speed", -1.0), ("jump_still", float("nan")), ("jump_area", 0.5), ("jump_window", 1),
+                      ("jump_sensor", float("inf"))):
+        with pytest.raises(ConfigError, match=name):
+            TrackConfig(**{name: bad})
 
 
 def test_an_object_of_a_handful_of_returns_moves_with_its_track_but_its_own_seen_through_share_is_no_evidence():

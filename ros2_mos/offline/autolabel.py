@@ -334,7 +334,7 @@ class AutoLabeler:
             raise ConfigError(f"autolabel: the tracks were built with other tracking settings ({changed}); track the "
                               "drive again to change them")
         tracker.config = self.config.tracks
-        tracker.cut_jumps()
+        tracker.cut_jumps(result.stamps, result.poses[:, :2, 3])
         movers = tracker.movers(cue=self.cue_model is not None)
         movers.update(tracker.handovers(movers))
         movers.update(tracker.resumptions(movers))

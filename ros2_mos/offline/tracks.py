@@ -192,6 +192,21 @@ class TrackConfig:
     jump_gap: int = 2
     jump_margin: float = 0.2
     jump_evidence: int = 5
+    #: m/s: a track is also cut where it jumped without a missed scan (:meth:`Tracker.cut_jumps`): its moving evidence
+    #: stops there (seen through before, not after, as for ``jump_gap``), its box (both edges, :func:`box_shift`)
+    #: travelled this fast or faster over the ``jump_window`` observations before and ``jump_still`` or slower over
+    #: those from there on, what stands is ``jump_area`` times larger in median footprint than what moved, and the
+    #: sensor's own speed (its poses) over the same observations changed by less than ``jump_sensor`` m/s. No
+    #: vehicle stops from 3 m/s within a scan: a passer-by seen through beside a parked car merges with it and the
+    #: track follows the car as it comes into view (VLP-32C unseen4 narrow_street-10013: 29,000 false moving points).
+    #: Where the poses say that the sensor itself halted so, the odometry slipped, and the boxes' speeds with it
+    #: (HDL-64E unseen8 traffic_jam-10402: KISS-ICP's sensor went 4.4 m/s, then 0.6, behind a car it followed at 2).
+    #: Not the other way round (:meth:`Tracker._halts`). 0: never
+    jump_speed: float = 3.0
+    jump_still: float = 0.5
+    jump_area: float = 2.0
+    jump_window: int = 3
+    jump_sensor: float = 1.5
 
     def __post_init__(self) -> None:
         from ros2_mos.offline.objects import check_numbers
@@ -200,15 +215,18 @@ class TrackConfig:
                       zero_ok=("moving_share", "cut_travel", "handover_scans", "handover_margin", "handover_min_area",
                                "handover_travel", "cue_travel", "cue_veto_share", "cue_veto_near", "cue_min_distance",
                                "resume_scans", "resume_stood", "resume_travel", "jump_gap", "jump_margin",
+                               "jump_speed", "jump_still", "jump_sensor",
                                "cue_end_travel", "cue_end_still", "leave_travel", "leave_min_length", "travel_jump"),
                       at_most_one=("seen_through", "moving_share", "cue_share", "cue_track_share", "handover_smaller",
                                    "cue_veto_share", "cue_veto_near", "travel_jump"))
         if self.evidence_travel not in EVIDENCE_TRAVEL:
             raise ConfigError(f"autolabel tracks: evidence_travel must be one of {', '.join(EVIDENCE_TRAVEL)}, got "
                               f"{self.evidence_travel!r}")
-        for name in ("max_area_ratio", "handover_larger"):
+        for name in ("max_area_ratio", "handover_larger", "jump_area"):
             if getattr(self, name) < 1.0:
                 raise ConfigError(f"autolabel tracks: {name} must be >= 1, got {getattr(self, name)!r}")
+        if self.jump_window < 2:
+            raise ConfigError(f"autolabel tracks: jump_window must be >= 2, got {self.jump_window!r}")
 
 
 @dataclass
@@ -313,6 +331,8 @@ def evidence_travel(observations: list[Observation], measure: str = "box") -> fl
 
 #: Footprints are measured from this size up (m per side): a pole's or a flat object's box has next to no area.
 MIN_FOOTPRINT_SIDE = 0.5
+#: s between scans where a drive's stamps are not given (:meth:`Tracker.cut_jumps`)
+SCAN_PERIOD = 0.1
 
 
 def overlap_from_above(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray) -> np.ndarray:
@@ -388,16 +408,18 @@ class Tracker:
         track.observations.append(obs)
         self.track_of[(obs.scan, obs.obj)] = track.id
 
-    def cut_jumps(self) -> int:
-        """Cut each track where it jumped from one object to another (see ``TrackConfig.jump_gap``): the pieces after
-        each cut become tracks of their own (new ids, ``track_of`` follows them). Call it once, after the last scan,
-        before the movers are judged. Returns how many cuts it made."""
+    def cut_jumps(self, stamps: np.ndarray | None = None, sensor_xy: np.ndarray | None = None) -> int:
+        """Cut each track where it jumped from one object to another (see ``TrackConfig.jump_gap`` and
+        ``jump_speed``): the pieces after each cut become tracks of their own (new ids, ``track_of`` follows them).
+        ``stamps``: seconds per scan of the drive (None: :data:`SCAN_PERIOD` apart); ``sensor_xy``: (scans, 2) the
+        sensor's world positions (None: not checked). Call it once, after the last scan, before the movers are
+        judged. Returns how many cuts it made."""
         cfg = self.config
-        if cfg.jump_gap == 0:
+        if cfg.jump_gap == 0 and cfg.jump_speed == 0:
             return 0
         cuts = 0
         for track in list(self.tracks):
-            at = self._jumps(track)
+            at = self._jumps(track, stamps, sensor_xy)
             if not at:
                 continue
             cuts += len(at)
@@ -411,31 +433,74 @@ class Tracker:
         self._live = []  # the drive is over: nothing continues
         return cuts
 
-    def _jumps(self, track: Track) -> list[int]:
+    def _jumps(self, track: Track, stamps: np.ndarray | None = None, sensor_xy: np.ndarray | None = None) -> list[int]:
         """The indices of ``track``'s observations where it jumped to another object (:meth:`cut_jumps`)."""
         cfg = self.config
         obs = track.observations
-        gaps = [i for i in range(1, len(obs)) if obs[i].scan - obs[i - 1].scan >= cfg.jump_gap]
-        if not gaps:  # most tracks: never missed
-            return []
+        gaps = [i for i in range(1, len(obs)) if obs[i].scan - obs[i - 1].scan >= cfg.jump_gap] if cfg.jump_gap else []
+        if not gaps and (cfg.jump_speed == 0 or len(obs) < 2 * cfg.jump_window):
+            return []  # most tracks: never missed, and too short to halt
         seen = np.array([self.seen_through(o) for o in obs])
         area = np.array([footprint(o) for o in obs])
-        before, after = cfg.min_moving_observations, cfg.jump_evidence
         out = []
         for g, i in enumerate(gaps):
             if overlap_from_above(obs[i - 1].lo[:2] - cfg.jump_margin, obs[i - 1].hi[:2] + cfg.jump_margin,
                                   obs[i].lo[:2], obs[i].hi[:2]):
                 continue
-            stopped = i >= before and seen[i - before:i].all() and i + after <= len(obs) and \
-                not seen[i:i + after].any()
-            started = i >= after and not seen[i - after:i].any() and i + before <= len(obs) and \
-                seen[i:i + before].all()
-            if not (stopped or started):
+            if self._evidence_breaks(seen, i) is None:
                 continue
             # the observations between this gap and the ones around it: two objects of different sizes
             a = float(np.median(area[gaps[g - 1] if g else 0:i]))
             b = float(np.median(area[i:gaps[g + 1] if g + 1 < len(gaps) else len(obs)]))
             if max(a, b) >= cfg.max_area_ratio * min(a, b):
+                out.append(i)
+        if cfg.jump_speed > 0:
+            out.extend(self._halts(obs, seen, area, stamps, sensor_xy))
+        return sorted(set(out))
+
+    def _evidence_breaks(self, seen: np.ndarray, i: int) -> str | None:
+        """'stopped' where the ``min_moving_observations`` observations before index ``i`` were seen through and none
+        of the ``jump_evidence`` from it on, 'started' the other way round, else None."""
+        before, after = self.config.min_moving_observations, self.config.jump_evidence
+        if i >= before and seen[i - before:i].all() and i + after <= len(seen) and not seen[i:i + after].any():
+            return "stopped"
+        if i >= after and not seen[i - after:i].any() and i + before <= len(seen) and seen[i:i + before].all():
+            return "started"
+        return None
+
+    def _halts(self, obs: list[Observation], seen: np.ndarray, area: np.ndarray, stamps: np.ndarray | None,
+               sensor_xy: np.ndarray | None = None) -> list[int]:
+        """The indices where a track's box halted from ``jump_speed`` to ``jump_still`` between two observations
+        while its moving evidence stopped there, what stands is ``jump_area`` times larger than what moved, and the
+        sensor (``sensor_xy``) kept its speed (:meth:`cut_jumps`; ``TrackConfig.jump_speed``). Not the other way
+        round (a standing track that goes on as a mover): that is what a mover merged with the static points around
+        it does as it drives out of them, and the merged part holds most of its points (real r1: an oncoming car,
+        its first 5 scans)."""
+        cfg = self.config
+        w, e = cfg.jump_window, cfg.jump_evidence
+        scans = np.array([o.scan for o in obs])
+        times = scans * SCAN_PERIOD if stamps is None else np.asarray(stamps, np.float64)[scans]
+        lo = np.array([o.lo[:2] for o in obs])
+        hi = np.array([o.hi[:2] for o in obs])
+
+        def speed(a: int, b: int) -> float:  # m/s of the box (both edges) from observation a to b - 1
+            shift = box_shift(lo[a], hi[a], lo[b - 1], hi[b - 1])
+            return float(np.linalg.norm(shift)) / max(float(times[b - 1] - times[a]), 1e-3)
+
+        def sensor_speed(xy: np.ndarray, a: int, b: int) -> float:  # m/s of the sensor, observation a's scan to b - 1's
+            step = np.asarray(xy[scans[b - 1]], np.float64) - np.asarray(xy[scans[a]], np.float64)
+            return float(np.linalg.norm(step)) / max(float(times[b - 1] - times[a]), 1e-3)
+
+        out = []
+        for i in range(w, len(obs) - w + 1):
+            if self._evidence_breaks(seen, i) != "stopped":
+                continue
+            if speed(i - w, i) < cfg.jump_speed or speed(i, i + w) > cfg.jump_still:
+                continue
+            if sensor_xy is not None and \
+                    abs(sensor_speed(sensor_xy, i - w, i) - sensor_speed(sensor_xy, i, i + w)) >= cfg.jump_sensor:
+                continue  # the odometry slipped: the boxes' speeds are the poses'
+            if float(np.median(area[i:i + e])) >= cfg.jump_area * float(np.median(area[max(0, i - e):i])):
                 out.append(i)
         return out
 
