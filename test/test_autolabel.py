@@ -730,18 +730,28 @@ def test_a_car_that_moved_near_then_waited_far_away_is_a_mover_by_what_it_did_ne
             TrackConfig(evidence_range=bad)
 
 
+def box_observation(scan: int, lo: tuple[float, float], hi: tuple[float, float], far: float, top: float = 1.6):
+    """An observation of 100 points whose world box stands on z 0 up to ``top``, seen through by ``far``."""
+    from ros2_mos.offline.tracks import Observation
+
+    lo3, hi3 = np.array([*lo, 0.0]), np.array([*hi, top])
+    return Observation(scan, 0, (lo3 + hi3) / 2, 100, lo3, hi3, far, far)
+
+
+def follow_scans(observations: list, config=None):
+    """A tracker fed every scan up to the last observation's (10 a second), also those where the track was missed."""
+    from ros2_mos.offline.tracks import TrackConfig, Tracker
+
+    tracker = Tracker(config or TrackConfig())
+    for k in range(observations[-1].scan + 1):
+        tracker.add_scan(k, 0.1 * k, 0.1 * (k - 1) if k else None, [o for o in observations if o.scan == k])
+    return tracker
+
+
 def test_a_track_is_cut_where_it_jumps_from_a_pedestrian_onto_the_parked_car_he_walked_past():
-    from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
+    from ros2_mos.offline.tracks import TrackConfig
 
-    def obs(scan: int, lo: tuple[float, float], hi: tuple[float, float], far: float) -> Observation:
-        lo3, hi3 = np.array([*lo, 0.0]), np.array([*hi, 1.6])
-        return Observation(scan, 0, (lo3 + hi3) / 2, 100, lo3, hi3, far, far)
-
-    def follow(observations: list[Observation], config: TrackConfig = TrackConfig()) -> Tracker:
-        tracker = Tracker(config)
-        for k in range(observations[-1].scan + 1):  # every scan, also those where the track was missed
-            tracker.add_scan(k, 0.1 * k, 0.1 * (k - 1) if k else None, [o for o in observations if o.scan == k])
-        return tracker
+    obs, follow = box_observation, follow_scans
 
     # VLP-16 unseen6 narrow_street-10211: a pedestrian walks along y -2.0..-1.5 at 3 m/s, seen through, and is hidden
     # for scans 11 and 12; at scan 13 the tracker takes on the first glimpse of the parked car he walks past, 0.3 m
@@ -795,17 +805,9 @@ def test_a_track_is_cut_where_it_jumps_from_a_pedestrian_onto_the_parked_car_he_
 
 
 def test_a_track_is_cut_where_a_cyclist_seen_through_halts_within_a_scan_onto_the_parked_car_he_rides_past():
-    from ros2_mos.offline.tracks import Observation, TrackConfig, Tracker
+    from ros2_mos.offline.tracks import TrackConfig
 
-    def obs(scan: int, lo: tuple[float, float], hi: tuple[float, float], far: float) -> Observation:
-        lo3, hi3 = np.array([*lo, 0.0]), np.array([*hi, 1.5])
-        return Observation(scan, 0, (lo3 + hi3) / 2, 100, lo3, hi3, far, far)
-
-    def follow(observations: list[Observation], config: TrackConfig = TrackConfig()) -> Tracker:
-        tracker = Tracker(config)
-        for k in sorted({o.scan for o in observations}):
-            tracker.add_scan(k, 0.1 * k, 0.1 * (k - 1) if k else None, [o for o in observations if o.scan == k])
-        return tracker
+    obs, follow = box_observation, follow_scans
 
     # VLP-32C unseen4 narrow_street-10013: a cyclist rides along y -1.9..-1.5 at 5.5 m/s, seen through (1.0 x 0.4 m;
     # footprint 1.0 x 0.5, each side at least 0.5 m), and merges with the parked car he passes; from scan 20 the track
