@@ -483,13 +483,15 @@ class Tracker:
         lo = np.array([o.lo[:2] for o in obs])
         hi = np.array([o.hi[:2] for o in obs])
 
-        def speed(a: int, b: int) -> float:  # m/s of the box (both edges) from observation a to b - 1
-            shift = box_shift(lo[a], hi[a], lo[b - 1], hi[b - 1])
-            return float(np.linalg.norm(shift)) / max(float(times[b - 1] - times[a]), 1e-3)
+        def seconds(a: int, b: int) -> float:  # from observation a to b - 1
+            return max(float(times[b - 1] - times[a]), 1e-3)
 
-        def sensor_speed(xy: np.ndarray, a: int, b: int) -> float:  # m/s of the sensor, observation a's scan to b - 1's
+        def speed(a: int, b: int) -> float:  # m/s of the box (both edges)
+            return float(np.linalg.norm(box_shift(lo[a], hi[a], lo[b - 1], hi[b - 1]))) / seconds(a, b)
+
+        def sensor_speed(xy: np.ndarray, a: int, b: int) -> float:  # m/s of the sensor between those scans
             step = np.asarray(xy[scans[b - 1]], np.float64) - np.asarray(xy[scans[a]], np.float64)
-            return float(np.linalg.norm(step)) / max(float(times[b - 1] - times[a]), 1e-3)
+            return float(np.linalg.norm(step)) / seconds(a, b)
 
         out = []
         for i in range(w, len(obs) - w + 1):
