@@ -469,7 +469,7 @@ class Tracker:
         return None
 
     def _halts(self, obs: list[Observation], seen: np.ndarray, area: np.ndarray, stamps: np.ndarray | None,
-               sensor_xy: np.ndarray | None = None) -> list[int]:
+               sensor_xy: np.ndarray | None) -> list[int]:
         """The indices where a track's box halted from ``jump_speed`` to ``jump_still`` between two observations
         while its moving evidence stopped there, what stands is ``jump_area`` times larger than what moved, and the
         sensor (``sensor_xy``) kept its speed (:meth:`cut_jumps`; ``TrackConfig.jump_speed``). Not the other way
@@ -480,14 +480,12 @@ class Tracker:
         w, e = cfg.jump_window, cfg.jump_evidence
         scans = np.array([o.scan for o in obs])
         times = scans * SCAN_PERIOD if stamps is None else np.asarray(stamps, np.float64)[scans]
-        lo = np.array([o.lo[:2] for o in obs])
-        hi = np.array([o.hi[:2] for o in obs])
 
         def seconds(a: int, b: int) -> float:  # from observation a to b - 1
             return max(float(times[b - 1] - times[a]), 1e-3)
 
-        def speed(a: int, b: int) -> float:  # m/s of the box (both edges)
-            return float(np.linalg.norm(box_shift(lo[a], hi[a], lo[b - 1], hi[b - 1]))) / seconds(a, b)
+        def speed(a: int, b: int) -> float:  # m/s of the box (both edges), its first to its last
+            return _moved_on(obs[a:b]) / seconds(a, b)
 
         def sensor_speed(xy: np.ndarray, a: int, b: int) -> float:  # m/s of the sensor between those scans
             step = np.asarray(xy[scans[b - 1]], np.float64) - np.asarray(xy[scans[a]], np.float64)
