@@ -81,8 +81,9 @@ UNSEEN6_SEEDS = {"traffic_jam": (10201, 10202, 10203, 10204), "narrow_street": (
 UNSEEN7_SEEDS = {"traffic_jam": (10301, 10302, 10303, 10304), "narrow_street": (10311, 10312, 10313),
                  "benchmark": (10321, 10322), "easy": (10331, 10332)}
 #: Round 32's check of rounds 31-32 (first scored when round 32's rule was chosen on the other sets).
-#: (Round 55 simulated the narrow_street drives of ``unseen`` to ``unseen7`` for the VLP-16, 21 drives, and chose a
-#: rule with them: for the VLP-16's narrow streets those are development drives; ``unseen8``'s are not.)
+#: (Round 55 simulated the narrow_street drives of ``unseen`` to ``unseen7`` for the VLP-16, the VLP-32C and the
+#: HDL-64E, 21 drives each, and rounds 55-56 chose rules with them: for those sensors' narrow streets they are
+#: development drives; ``unseen8``'s are not.)
 UNSEEN8_SEEDS = {"traffic_jam": (10401, 10402, 10403, 10404), "narrow_street": (10411, 10412, 10413),
                  "benchmark": (10421, 10422), "easy": (10431, 10432)}
 SEED_SETS = {"suite": SIM_SEEDS, "validation": VALIDATION_SEEDS, "fresh": FRESH_SEEDS, "unseen": UNSEEN_SEEDS,
